@@ -1,0 +1,1 @@
+"""solvers: time-optimal slew solvers (indirect shooting, multiple shooting, continuation)."""
