@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Optional, Sequence
@@ -30,6 +32,11 @@ QUAT_REJECT_TOL = 1e-3
 # A start or target sensor direction may sit on a cone boundary (R4 starts there),
 # but not inside it by more than this (rad).
 CONE_FEASIBILITY_TOL = 1e-9
+
+# A vector whose norm is within this of 1 is already unit to rounding and is kept
+# bit for bit, so that normalising is idempotent: ``from_dict(p.to_dict()) == p``
+# (dividing a unit vector by its computed norm again can move it by an ulp).
+_UNIT_ROUNDING_TOL = 8.0 * np.finfo(float).eps
 
 FIELDS = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_axis",
           "sensor_target", "omegaf", "cones", "rate_max")
@@ -54,8 +61,26 @@ def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=Fal
         n = float(np.linalg.norm(arr))
         if n < 1e-12:
             raise ValueError(f"{name}: zero-length axis cannot be normalised")
-        arr = arr / n
+        arr = _normalised(arr, n)
     return arr.copy()
+
+
+def _normalised(arr, n):
+    """``arr / n``, or ``arr`` itself when it is already unit to rounding (idempotent)."""
+    if abs(n - 1.0) <= _UNIT_ROUNDING_TOL:
+        return arr.copy()
+    return arr / n
+
+
+def _caller_stacklevel():
+    """``stacklevel`` for ``warnings.warn`` pointing at the first frame outside this module."""
+    here = os.path.normcase(os.path.abspath(__file__))
+    f = sys._getframe(1)
+    level = 1
+    while f is not None and os.path.normcase(os.path.abspath(f.f_code.co_filename)) == here:
+        f = f.f_back
+        level += 1
+    return level
 
 
 def _unit_quaternion(name, value):
@@ -67,9 +92,10 @@ def _unit_quaternion(name, value):
             f"{name}: not a unit quaternion (norm {n:.6g}, off by {err:.3g} > {QUAT_REJECT_TOL:g}); "
             "give a unit quaternion [q0, q1, q2, q3], scalar first")
     if err > QUAT_SILENT_TOL:
-        warnings.warn(f"{name}: quaternion norm {n:.9g} is off by {err:.3g}; normalised",
-                      UserWarning, stacklevel=4)
-    return q / n
+        warnings.warn(f"{name}: quaternion norm {n:.9g} is off by {err:.3g} "
+                      f"(> {QUAT_SILENT_TOL:g}, <= {QUAT_REJECT_TOL:g}); normalised",
+                      UserWarning, stacklevel=_caller_stacklevel())
+    return _normalised(q, n)
 
 
 def _torque_norm(value):
@@ -222,6 +248,8 @@ class SlewProblem:
             cones = ()
         if isinstance(cones, (dict, Cone)):
             raise ValueError("cones: expected a list of cones, got a single cone; wrap it in a list")
+        if isinstance(cones, (str, bytes)) or not hasattr(cones, "__iter__"):
+            raise ValueError(f"cones: expected a list of cones, got {cones!r}")
         self.cones = tuple(Cone.from_dict(c, _field=f"cones[{k}]") for k, c in enumerate(cones))
         if rate_max is None:
             self.rate_max = None
@@ -359,7 +387,7 @@ class SlewProblem:
         unknown = set(d) - set(FIELDS)
         if unknown:
             raise ValueError(f"problem: unknown field(s) {sorted(unknown)}; known fields are {list(FIELDS)}")
-        if "inertia" not in d:
+        if d.get("inertia") is None:
             raise ValueError("inertia: missing (3 principal moments of inertia)")
         kwargs = {k: v for k, v in d.items() if v is not None or k in ("qf", "sensor_target", "rate_max")}
         return cls(**kwargs)

@@ -97,11 +97,19 @@ def qfrom_two_vectors(a, b):
 
     For antiparallel vectors the axis is any unit vector orthogonal to ``a``
     (chosen deterministically).
+
+    Accurate up to exactly antiparallel inputs: ``[1 + a·b, a × b]`` is evaluated as
+    ``[|s|²/2, a × s]`` with ``s = a + b`` (for unit vectors these are equal), which
+    does not cancel catastrophically as ``b → -a``.
     """
-    d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    s0 = a[0] + b[0]
+    s1 = a[1] + b[1]
+    s2 = a[2] + b[2]
+    ss = s0 * s0 + s1 * s1 + s2 * s2
     out = np.empty(4)
-    if d < -1.0 + 1e-12:
-        # pick the coordinate axis least aligned with a
+    if ss < 1e-30:
+        # antiparallel to rounding (|a + b| < 1e-15): rotate by π about the
+        # coordinate axis least aligned with a, made orthogonal to a
         ax = np.zeros(3)
         i = 0
         if abs(a[1]) < abs(a[i]):
@@ -118,13 +126,11 @@ def qfrom_two_vectors(a, b):
         out[2] = c1 / n
         out[3] = c2 / n
         return out
-    c0 = a[1] * b[2] - a[2] * b[1]
-    c1 = a[2] * b[0] - a[0] * b[2]
-    c2 = a[0] * b[1] - a[1] * b[0]
-    out[0] = 1.0 + d
-    out[1] = c0
-    out[2] = c1
-    out[3] = c2
+    # a × b = a × (a + b); 1 + a·b = |a + b|² / 2 for unit a, b
+    out[0] = 0.5 * ss
+    out[1] = a[1] * s2 - a[2] * s1
+    out[2] = a[2] * s0 - a[0] * s2
+    out[3] = a[0] * s1 - a[1] * s0
     return qnormalize(out)
 
 
