@@ -1,0 +1,216 @@
+"""The time-optimal slew as a shooting problem (full-attitude target, no cones).
+
+Works in nondimensional units: inertia ``J / J_max``, torque ``u / u_max``
+(``u_max`` the largest per-axis bound), time ``t / τ`` with ``τ = sqrt(J_max / u_max)``.
+
+Unknowns and gauge (CONVENTIONS.md):
+
+* The quaternion costate has a gauge direction along ``q`` (``λq·q`` is conserved and
+  ``λq ∥ q`` changes neither the state nor ``λω``). We fix ``λq(0)·q(0) = 0`` by
+  writing ``λq(0) = q(0) ⊗ [0, μ]``: ``μ`` is the attitude costate in body axes,
+  3 numbers. (Along an extremal ``λq(t) = q(t) ⊗ [0, μ(t)]`` with ``μ`` the body
+  components of a constant inertial vector.)
+* The costates are homogeneous of degree one (the control depends on directions
+  only), so the scale is fixed during Newton by ``|μ|² + |λω(0)|² = 1`` and the free
+  final time is the 7th unknown. For reporting the costates are rescaled so that
+  ``H ≡ -1`` (the ``λ0 = 1`` normalisation); normality (``H < 0``) is verified.
+
+Boundary residuals: ``s · Im(qf* ⊗ q(tf))`` with ``s`` the sign of the scalar part
+(``q`` and ``-q`` are one attitude) and ``ω(tf) - ωf``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from slew_env.core.quaternion import qmul, qconj
+from .core import attitude_flow as af
+
+NY = af.NY
+
+
+def quat_left_matrix(q):
+    """``Q(q)`` with ``q ⊗ p = Q(q) p``."""
+    q0, q1, q2, q3 = q
+    return np.array([[q0, -q1, -q2, -q3],
+                     [q1, q0, -q3, q2],
+                     [q2, q3, q0, -q1],
+                     [q3, -q2, q1, q0]])
+
+
+@dataclass
+class FlowOut:
+    y: np.ndarray
+    Phi: Optional[np.ndarray]
+    f: np.ndarray
+    ok: bool
+    message: str
+    signs_end: np.ndarray
+    n_switches: int
+    n_steps: int
+
+
+@dataclass
+class Trajectory:
+    """Recorded extremal in nondimensional units."""
+    t: np.ndarray          # (n,)
+    y: np.ndarray          # (n, 14)
+    signs: np.ndarray      # (n, 3) arc signs (bang-bang) at each record
+    switch_t: np.ndarray   # (k,)
+    switch_axis: np.ndarray  # (k,)
+    signs0: np.ndarray     # (3,)
+    ok: bool
+    message: str
+
+
+class AttitudeBVP:
+    """Rest-to-rest (or rate-to-rate) full-attitude time-optimal slew, no cones.
+
+    ``mode`` is one of ``"bang"`` (per-axis bound, exact switching), ``"pnorm"``
+    (``p``-norm bound, closed-form control) or ``"tanh"`` (smoothed per-axis law with
+    width ``eps``, a homotopy only).
+    """
+    n_y = NY
+    n_p = 6
+
+    def __init__(self, problem, mode="bang", p=None, eps=1e-2, rtol=1e-12, atol=1e-13,
+                 max_switches=200):
+        if problem.qf is None:
+            raise ValueError("sensor_target: pointing-only targets are not supported by the "
+                             "indirect solver yet; give a full attitude qf")
+        if problem.cones:
+            raise ValueError("cones: the indirect solver does not handle keep-out cones yet")
+        self.problem = problem
+        Jmax = float(problem.inertia.max())
+        umax = float(problem.torque_max.max())
+        self.tau = math.sqrt(Jmax / umax)
+        self.J = problem.inertia / Jmax
+        self.umax = problem.torque_max / umax
+        self.q0 = problem.q0.copy()
+        self.qf = problem.qf.copy()
+        self.w0 = problem.omega0 * self.tau
+        self.wf = problem.omegaf * self.tau
+        self.set_mode(mode, p, eps)
+        self.rtol = rtol
+        self.atol = atol
+        self.max_switches = max_switches
+        self._dq0 = quat_left_matrix(self.q0)[:, 1:4]   # ∂λq(0)/∂μ
+        Qfc = quat_left_matrix(qconj(self.qf))
+        self._dres_q = Qfc[1:4, :]                       # ∂Im(qf*⊗q)/∂q
+
+    # ----------------------------------------------------------------- modes
+    def set_mode(self, mode, p=None, eps=1e-2):
+        if mode == "bang":
+            self.mode = af.MODE_BANG
+            self.p = 0.0
+        elif mode == "pnorm":
+            if p is None or not (p > 1.0) or math.isinf(p):
+                raise ValueError(f"p: the pnorm mode needs a finite p > 1, got {p}")
+            self.mode = af.MODE_PNORM
+            self.p = float(p)
+        elif mode == "tanh":
+            self.mode = af.MODE_TANH
+            self.p = 0.0
+        else:
+            raise ValueError(f"mode: unknown control law {mode!r}")
+        self.mode_name = mode
+        self.eps = float(eps)
+
+    # ----------------------------------------------------------------- BVP pieces
+    def initial(self, z):
+        y0 = np.empty(NY)
+        y0[0:4] = self.q0
+        y0[4:7] = self.w0
+        y0[7:11] = qmul(self.q0, np.array([0.0, z[0], z[1], z[2]]))
+        y0[11:14] = z[3:6]
+        d = np.zeros((NY, 6))
+        d[7:11, 0:3] = self._dq0
+        d[11:14, 3:6] = np.eye(3)
+        return y0, d
+
+    def param_residual(self, z):
+        return np.array([float(z @ z) - 1.0]), 2.0 * z[None, :]
+
+    def initial_signs(self, y):
+        """Sign of each axis's first arc: ``-sign(S_i)``, ties broken by ``-sign(Ṡ_i)``."""
+        S = y[11:14] / self.J
+        u = np.zeros(3)
+        f = af.ext_rhs(y, u, self.J)
+        Sd = f[11:14] / self.J
+        scale = max(float(np.max(np.abs(S))), 1e-300)
+        s = np.empty(3)
+        for i in range(3):
+            if abs(S[i]) > 1e-13 * scale:
+                s[i] = -math.copysign(1.0, S[i])
+            elif Sd[i] != 0.0:
+                s[i] = -math.copysign(1.0, Sd[i])
+            else:
+                s[i] = 1.0
+        return s
+
+    def _run(self, y0, duration, Phi0, signs0=None, record=0, detect=True, hmax=np.inf):
+        m = 0 if Phi0 is None else Phi0.shape[1]
+        Y0 = np.empty(NY + NY * m)
+        Y0[:NY] = y0
+        if m:
+            Y0[NY:] = Phi0.ravel()
+        signs = self.initial_signs(y0) if signs0 is None else np.asarray(signs0, float)
+        rec_t = np.empty(record)
+        rec_Y = np.empty((record, NY))
+        rec_s = np.empty((record, 3))
+        sw_t = np.empty(self.max_switches + 1)
+        sw_a = np.empty(self.max_switches + 1, dtype=np.int64)
+        h0 = min(0.05, duration) if duration > 0 else 0.0
+        Y, s_end, n_rec, n_sw, steps, status = af.flow(
+            Y0, float(duration), m, self.J, self.umax, self.mode, self.p, self.eps, signs,
+            self.rtol, self.atol, h0, 200000, self.max_switches, rec_t, rec_Y, rec_s, sw_t, sw_a,
+            detect, hmax)
+        return Y, s_end, n_rec, n_sw, steps, status, rec_t, rec_Y, rec_s, sw_t, sw_a, signs
+
+    def flow(self, y0, duration, Phi0):
+        if not (duration > 0.0) or not np.all(np.isfinite(y0)):
+            return FlowOut(y0, None, np.zeros(NY), False, "non-positive duration or non-finite state",
+                           np.zeros(3), 0, 0)
+        Y, s_end, _, n_sw, steps, status, *_ = self._run(y0, duration, Phi0)
+        y = Y[:NY].copy()
+        ok = status == af.FLOW_OK and bool(np.all(np.isfinite(Y)))
+        Phi = Y[NY:].reshape(NY, -1) if Phi0 is not None else None
+        u, _ = af.control(y, self.J, self.umax, self.mode, self.p, self.eps, s_end)
+        f = af.ext_rhs(y, u, self.J)
+        msg = "" if ok else f"propagation failed (status {status})"
+        return FlowOut(y, Phi, f, ok, msg, s_end, n_sw, steps)
+
+    def terminal(self, y, T):
+        dq = qmul(qconj(self.qf), y[0:4])
+        s = 1.0 if dq[0] >= 0.0 else -1.0
+        r = np.empty(6)
+        r[0:3] = s * dq[1:4]
+        r[3:6] = y[4:7] - self.wf
+        d = np.zeros((6, NY))
+        d[0:3, 0:4] = s * self._dres_q
+        d[3:6, 4:7] = np.eye(3)
+        return r, d, np.zeros(6)
+
+    # ----------------------------------------------------------------- helpers
+    def record(self, z, T, n_max=20000, hmax=np.inf):
+        """Propagate the extremal from parameters ``z`` over ``T`` and record it."""
+        y0, _ = self.initial(z)
+        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, s0 = self._run(
+            y0, T, None, record=n_max, hmax=hmax)
+        n_sw_kept = min(n_sw, swt.shape[0])
+        return Trajectory(rt[:n_rec].copy(), rY[:n_rec].copy(), rs[:n_rec].copy(), swt[:n_sw_kept].copy(),
+                          swa[:n_sw_kept].copy(), s0, status == af.FLOW_OK,
+                          "" if status == af.FLOW_OK else f"propagation failed (status {status})")
+
+    def arc(self, y0, duration, signs, Phi0=None):
+        """One bang-bang arc with fixed ``signs`` (no switch detection)."""
+        Y, s_end, _, _, steps, status, *_ = self._run(y0, duration, Phi0, signs0=signs, detect=False)
+        ok = status == af.FLOW_OK and bool(np.all(np.isfinite(Y)))
+        Phi = Y[NY:].reshape(NY, -1) if Phi0 is not None else None
+        return Y[:NY].copy(), Phi, ok
+
+    def hamiltonian(self, y, signs):
+        return af.hamiltonian(y, self.J, self.umax, self.mode, self.p, self.eps, signs)

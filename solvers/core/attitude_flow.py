@@ -1,0 +1,446 @@
+"""Compiled flow of the time-optimal attitude extremals (state + costate + sensitivities).
+
+Augmented state ``y = [q (4), ω (3), λq (4), λω (3)]`` (14), in the solver's
+nondimensional units (``J`` scaled by ``J_max``, torque by ``u_max``).
+
+Pontryagin for ``H = λqᵀ ½ q⊗[0,ω] + λωᵀ J⁻¹(u + f(ω))``, ``f(ω) = -ω × Jω``::
+
+    λ̇q = ½ λq ⊗ [0, ω]
+    λ̇ω = -½ Im(q* ⊗ λq) - (∂f/∂ω)ᵀ J⁻¹ λω
+
+Control laws (``mode``), on ``σ_i = umax_i · (J⁻¹λω)_i``:
+
+* ``MODE_BANG`` (per-axis bound, exact): ``u_i = umax_i · s_i`` with the arc's
+  sign vector ``s`` held fixed between switches; a switch is an event
+  ``S_i = (J⁻¹λω)_i = 0``, located to ~1e-13 by Newton on the step length,
+  after which ``s_i`` flips and the sensitivities get the jump correction
+  ``Φ⁺ = Φ⁻ + (f⁻ - f⁺) ∂t_s/∂y0``.
+* ``MODE_PNORM`` (``‖u/umax‖_p ≤ 1``): the closed form of seed report eq. 35,
+  ``v_i = -sgn σ_i |σ_i|^{1/(p-1)} / (Σ|σ_j|^{p/(p-1)})^{1/p}``.
+* ``MODE_TANH`` (smoothing homotopy towards the bang-bang law):
+  ``v_i = -tanh(σ_i / ε)``. Never returned as an answer.
+
+The integrator is Dormand–Prince 8(5,3) (the coefficients scipy's DOP853 uses)
+with error control on ``y`` only; the sensitivity matrix ``Φ = ∂y/∂(inputs)``
+(``m`` columns, ``m`` may be 0) rides along on the same steps.
+"""
+import numpy as np
+from numba import njit
+from scipy.integrate._ivp import dop853_coefficients as _dop
+
+NY = 14
+MODE_BANG = 0
+MODE_PNORM = 1
+MODE_TANH = 2
+
+# Flow status codes
+FLOW_OK = 0
+FLOW_MAX_STEPS = 1
+FLOW_STEP_UNDERFLOW = 2
+FLOW_NONFINITE = 3
+FLOW_TOO_MANY_SWITCHES = 4
+
+_NS = 12
+_A = np.ascontiguousarray(_dop.A[:_NS, :_NS])
+_B = np.ascontiguousarray(_dop.B)
+_C = np.ascontiguousarray(_dop.C[:_NS])
+_E3 = np.ascontiguousarray(_dop.E3)
+_E5 = np.ascontiguousarray(_dop.E5)
+
+
+@njit(cache=True)
+def control(y, J, umax, mode, p, eps, signs):
+    """Torque ``u`` (3,) and ``du/dλω`` (3x3) for the augmented state ``y``."""
+    u = np.zeros(3)
+    dudl = np.zeros((3, 3))
+    if mode == MODE_BANG:
+        for i in range(3):
+            u[i] = umax[i] * signs[i]
+        return u, dudl
+    sig = np.empty(3)
+    for i in range(3):
+        sig[i] = umax[i] * y[11 + i] / J[i]
+    dvds = np.zeros((3, 3))
+    v = np.zeros(3)
+    if mode == MODE_TANH:
+        for i in range(3):
+            th = np.tanh(sig[i] / eps)
+            v[i] = -th
+            dvds[i, i] = -(1.0 - th * th) / eps
+    else:
+        r = 1.0 / (p - 1.0)
+        ssum = 0.0
+        for i in range(3):
+            ssum += abs(sig[i]) ** (r + 1.0)
+        if ssum == 0.0:
+            return u, dudl
+        nrm = ssum ** (1.0 / p)
+        a = np.empty(3)
+        for i in range(3):
+            a[i] = np.sign(sig[i]) * abs(sig[i]) ** r
+            v[i] = -a[i] / nrm
+        for i in range(3):
+            for k in range(3):
+                dvds[i, k] = r * a[i] * a[k] / (nrm * ssum)
+            if sig[i] != 0.0:
+                dvds[i, i] -= r * abs(sig[i]) ** (r - 1.0) / nrm
+    for i in range(3):
+        u[i] = umax[i] * v[i]
+        for k in range(3):
+            dudl[i, k] = umax[i] * dvds[i, k] * umax[k] / J[k]
+    return u, dudl
+
+
+@njit(cache=True)
+def ext_rhs(y, u, J):
+    """Time derivative of the augmented state for a given torque."""
+    f = np.empty(NY)
+    q0, q1, q2, q3 = y[0], y[1], y[2], y[3]
+    w0, w1, w2 = y[4], y[5], y[6]
+    l0, l1, l2, l3 = y[7], y[8], y[9], y[10]
+    c0 = J[2] - J[1]
+    c1 = J[0] - J[2]
+    c2 = J[1] - J[0]
+    f[0] = 0.5 * (-q1 * w0 - q2 * w1 - q3 * w2)
+    f[1] = 0.5 * (q0 * w0 + q2 * w2 - q3 * w1)
+    f[2] = 0.5 * (q0 * w1 - q1 * w2 + q3 * w0)
+    f[3] = 0.5 * (q0 * w2 + q1 * w1 - q2 * w0)
+    f[4] = (u[0] - c0 * w1 * w2) / J[0]
+    f[5] = (u[1] - c1 * w2 * w0) / J[1]
+    f[6] = (u[2] - c2 * w0 * w1) / J[2]
+    f[7] = 0.5 * (-l1 * w0 - l2 * w1 - l3 * w2)
+    f[8] = 0.5 * (l0 * w0 + l2 * w2 - l3 * w1)
+    f[9] = 0.5 * (l0 * w1 - l1 * w2 + l3 * w0)
+    f[10] = 0.5 * (l0 * w2 + l1 * w1 - l2 * w0)
+    # Im(q* ⊗ λq) = q0 lv - l0 qv - qv × lv
+    im0 = q0 * l1 - l0 * q1 - (q2 * l3 - q3 * l2)
+    im1 = q0 * l2 - l0 * q2 - (q3 * l1 - q1 * l3)
+    im2 = q0 * l3 - l0 * q3 - (q1 * l2 - q2 * l1)
+    a0 = y[11] / J[0]
+    a1 = y[12] / J[1]
+    a2 = y[13] / J[2]
+    # (∂f/∂ω)ᵀ a with f = -ω × Jω
+    g0 = -c1 * w2 * a1 - c2 * w1 * a2
+    g1 = -c0 * w2 * a0 - c2 * w0 * a2
+    g2 = -c0 * w1 * a0 - c1 * w0 * a1
+    f[11] = -0.5 * im0 - g0
+    f[12] = -0.5 * im1 - g1
+    f[13] = -0.5 * im2 - g2
+    return f
+
+
+@njit(cache=True)
+def ext_jac(y, J, dudl):
+    """``∂ẏ/∂y`` (14x14) for a torque whose dependence on λω is ``dudl``."""
+    A = np.zeros((NY, NY))
+    q0, q1, q2, q3 = y[0], y[1], y[2], y[3]
+    w0, w1, w2 = y[4], y[5], y[6]
+    l0, l1, l2, l3 = y[7], y[8], y[9], y[10]
+    c0 = J[2] - J[1]
+    c1 = J[0] - J[2]
+    c2 = J[1] - J[0]
+    # right multiplication by [0, ω]: ½ Q̄(w), shared by q̇ and λ̇q
+    for off in (0, 7):
+        A[off + 0, off + 1] = -0.5 * w0
+        A[off + 0, off + 2] = -0.5 * w1
+        A[off + 0, off + 3] = -0.5 * w2
+        A[off + 1, off + 0] = 0.5 * w0
+        A[off + 1, off + 2] = 0.5 * w2
+        A[off + 1, off + 3] = -0.5 * w1
+        A[off + 2, off + 0] = 0.5 * w1
+        A[off + 2, off + 1] = -0.5 * w2
+        A[off + 2, off + 3] = 0.5 * w0
+        A[off + 3, off + 0] = 0.5 * w2
+        A[off + 3, off + 1] = 0.5 * w1
+        A[off + 3, off + 2] = -0.5 * w0
+    # ∂(½ x ⊗ [0,ω])/∂ω for x = q (rows 0..3) and x = λq (rows 7..10)
+    for off, x0, x1, x2, x3 in ((0, q0, q1, q2, q3), (7, l0, l1, l2, l3)):
+        A[off + 0, 4] = -0.5 * x1
+        A[off + 0, 5] = -0.5 * x2
+        A[off + 0, 6] = -0.5 * x3
+        A[off + 1, 4] = 0.5 * x0
+        A[off + 1, 5] = -0.5 * x3
+        A[off + 1, 6] = 0.5 * x2
+        A[off + 2, 4] = 0.5 * x3
+        A[off + 2, 5] = 0.5 * x0
+        A[off + 2, 6] = -0.5 * x1
+        A[off + 3, 4] = -0.5 * x2
+        A[off + 3, 5] = 0.5 * x1
+        A[off + 3, 6] = 0.5 * x0
+    # ω̇ = J⁻¹ (u + f(ω))
+    A[4, 5] = -c0 * w2 / J[0]
+    A[4, 6] = -c0 * w1 / J[0]
+    A[5, 4] = -c1 * w2 / J[1]
+    A[5, 6] = -c1 * w0 / J[1]
+    A[6, 4] = -c2 * w1 / J[2]
+    A[6, 5] = -c2 * w0 / J[2]
+    for i in range(3):
+        for k in range(3):
+            A[4 + i, 11 + k] = dudl[i, k] / J[i]
+    # λ̇ω = -½ Im(q* ⊗ λq) - (∂f/∂ω)ᵀ J⁻¹ λω
+    # ∂Im/∂q0 = lv ; ∂Im/∂qv = -l0 I + [lv]x ; ∂Im/∂l0 = -qv ; ∂Im/∂lv = q0 I - [qv]x
+    A[11, 0] = -0.5 * l1
+    A[12, 0] = -0.5 * l2
+    A[13, 0] = -0.5 * l3
+    A[11, 1] = 0.5 * l0
+    A[11, 2] = 0.5 * l3
+    A[11, 3] = -0.5 * l2
+    A[12, 1] = -0.5 * l3
+    A[12, 2] = 0.5 * l0
+    A[12, 3] = 0.5 * l1
+    A[13, 1] = 0.5 * l2
+    A[13, 2] = -0.5 * l1
+    A[13, 3] = 0.5 * l0
+    A[11, 7] = 0.5 * q1
+    A[12, 7] = 0.5 * q2
+    A[13, 7] = 0.5 * q3
+    A[11, 8] = -0.5 * q0
+    A[11, 9] = -0.5 * q3
+    A[11, 10] = 0.5 * q2
+    A[12, 8] = 0.5 * q3
+    A[12, 9] = -0.5 * q0
+    A[12, 10] = -0.5 * q1
+    A[13, 8] = -0.5 * q2
+    A[13, 9] = 0.5 * q1
+    A[13, 10] = -0.5 * q0
+    a0 = y[11] / J[0]
+    a1 = y[12] / J[1]
+    a2 = y[13] / J[2]
+    A[11, 5] = c2 * a2
+    A[11, 6] = c1 * a1
+    A[12, 4] = c2 * a2
+    A[12, 6] = c0 * a0
+    A[13, 4] = c1 * a1
+    A[13, 5] = c0 * a0
+    # -(∂f/∂ω)ᵀ J⁻¹ : (∂f/∂ω)[i,k] from f0=-c0 w1 w2, f1=-c1 w2 w0, f2=-c2 w0 w1
+    A[11, 12] = c1 * w2 / J[1]
+    A[11, 13] = c2 * w1 / J[2]
+    A[12, 11] = c0 * w2 / J[0]
+    A[12, 13] = c2 * w0 / J[2]
+    A[13, 11] = c0 * w1 / J[0]
+    A[13, 12] = c1 * w0 / J[1]
+    return A
+
+
+@njit(cache=True)
+def full_rhs(Y, m, J, umax, mode, p, eps, signs):
+    """Derivative of ``[y, Φ]`` (Φ row-major 14 x m)."""
+    y = Y[:NY]
+    u, dudl = control(y, J, umax, mode, p, eps, signs)
+    out = np.empty(NY + NY * m)
+    out[:NY] = ext_rhs(y, u, J)
+    if m > 0:
+        A = ext_jac(y, J, dudl)
+        Phi = Y[NY:].reshape((NY, m))
+        out[NY:] = (A @ Phi).ravel()
+    return out
+
+
+@njit(cache=True)
+def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0):
+    """One DOP853 step; returns (Y_new, K_last, error norm on y)."""
+    n = Y.shape[0]
+    K = np.empty((13, n))
+    K[0] = K0
+    for s in range(1, _NS):
+        dy = np.zeros(n)
+        for j in range(s):
+            if _A[s, j] != 0.0:
+                dy += _A[s, j] * K[j]
+        K[s] = full_rhs(Y + h * dy, m, J, umax, mode, p, eps, signs)
+    acc = np.zeros(n)
+    for j in range(_NS):
+        acc += _B[j] * K[j]
+    Ynew = Y + h * acc
+    K[12] = full_rhs(Ynew, m, J, umax, mode, p, eps, signs)
+    return Ynew, K
+
+
+@njit(cache=True)
+def _err_norm(Y, Ynew, K, h, rtol, atol):
+    e5 = 0.0
+    e3 = 0.0
+    for i in range(NY):
+        sc = atol + rtol * max(abs(Y[i]), abs(Ynew[i]))
+        a5 = 0.0
+        a3 = 0.0
+        for j in range(13):
+            a5 += _E5[j] * K[j, i]
+            a3 += _E3[j] * K[j, i]
+        e5 += (a5 / sc) ** 2
+        e3 += (a3 / sc) ** 2
+    if e5 == 0.0 and e3 == 0.0:
+        return 0.0
+    den = e5 + 0.01 * e3
+    return abs(h) * e5 / np.sqrt(den * NY)
+
+
+@njit(cache=True)
+def switching(Y, J):
+    return Y[11:14] / J
+
+
+@njit(cache=True)
+def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, max_switches,
+         rec_t, rec_Y, rec_signs, sw_t, sw_axis, detect=True, hmax=np.inf):
+    """Integrate ``[y, Φ]`` from t=0 to ``tf`` (> 0).
+
+    ``signs0`` is the bang-bang sign vector of the first arc (ignored by the
+    smooth modes). Accepted step ends and both sides of every switch are written
+    to ``rec_t`` / ``rec_Y`` / ``rec_signs`` while room remains. Switch instants
+    and axes go to ``sw_t`` / ``sw_axis``. With ``detect=False`` the bang-bang
+    signs stay fixed over the whole interval (one arc of a fixed switching
+    structure). ``hmax`` caps the step (dense recording).
+
+    Returns ``(Y(tf), signs at tf, n_rec, n_switches, n_steps, status)``.
+    """
+    n = Y0.shape[0]
+    Y = Y0.copy()
+    signs = signs0.copy()
+    t = 0.0
+    K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs)
+    h = min(h0, tf)
+    n_rec = 0
+    cap = rec_t.shape[0]
+    if cap > 0:
+        rec_t[0] = 0.0
+        rec_Y[0] = Y[:NY]
+        rec_signs[0] = signs
+        n_rec = 1
+    n_sw = 0
+    steps = 0
+    status = FLOW_OK
+    while t < tf:
+        if steps >= max_steps:
+            status = FLOW_MAX_STEPS
+            break
+        last = False
+        if h > hmax:
+            h = hmax
+        if t + h >= tf:
+            h = tf - t
+            last = True
+        if h < 1e-14 * max(1.0, tf):
+            if last:
+                break
+            status = FLOW_STEP_UNDERFLOW
+            break
+        Ynew, K = _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0)
+        steps += 1
+        err = _err_norm(Y, Ynew, K, h, rtol, atol)
+        if not (err == err) or not np.isfinite(Ynew[0]):
+            h *= 0.25
+            if h < 1e-14:
+                status = FLOW_NONFINITE
+                break
+            continue
+        if err > 1.0:
+            h *= max(0.2, 0.9 * err ** (-1.0 / 8.0))
+            continue
+        # event check: the arc's sign must stay consistent with u = -umax sign(S)
+        if mode == MODE_BANG and detect:
+            Snew = switching(Ynew, J)
+            first_tau = h
+            first_ax = -1
+            for i in range(3):
+                if signs[i] * Snew[i] > 0.0:
+                    tau = _locate_switch(Y, h, m, J, umax, signs, K0, i)
+                    if tau < first_tau:
+                        first_tau = tau
+                        first_ax = i
+            if first_ax >= 0:
+                if first_tau < h:
+                    Ynew, K = _dop853_step(Y, first_tau, m, J, umax, mode, p, eps, signs, K0)
+                t += first_tau
+                Y = Ynew
+                if cap > 0 and n_rec < cap:
+                    rec_t[n_rec] = t
+                    rec_Y[n_rec] = Y[:NY]
+                    rec_signs[n_rec] = signs
+                    n_rec += 1
+                # sensitivity jump: Φ⁺ = Φ⁻ + (f⁻ - f⁺) ∂ts/∂y0, ∂ts = -∇S·Φ⁻ / Ṡ
+                if m > 0:
+                    k = first_ax
+                    ldot = K[12][11 + k]  # λ̇ω_k is the same on both sides
+                    if ldot != 0.0:
+                        jump = 2.0 * signs[k] * umax[k] / J[k]
+                        for c in range(m):
+                            dts = -Y[NY + (11 + k) * m + c] / ldot
+                            Y[NY + (4 + k) * m + c] += jump * dts
+                if n_sw < sw_t.shape[0]:
+                    sw_t[n_sw] = t
+                    sw_axis[n_sw] = first_ax
+                n_sw += 1
+                signs[first_ax] = -signs[first_ax]
+                if n_sw > max_switches:
+                    status = FLOW_TOO_MANY_SWITCHES
+                    break
+                K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs)
+                if cap > 0 and n_rec < cap:
+                    rec_t[n_rec] = t
+                    rec_Y[n_rec] = Y[:NY]
+                    rec_signs[n_rec] = signs
+                    n_rec += 1
+                continue
+        t = tf if last else t + h
+        Y = Ynew
+        K0 = K[12]
+        if cap > 0 and n_rec < cap:
+            rec_t[n_rec] = t
+            rec_Y[n_rec] = Y[:NY]
+            rec_signs[n_rec] = signs
+            n_rec += 1
+        fac = 0.9 * err ** (-1.0 / 8.0) if err > 0.0 else 10.0
+        h *= min(10.0, max(0.2, fac))
+    return Y, signs, n_rec, n_sw, steps, status
+
+
+@njit(cache=True)
+def _locate_switch(Y, h, m, J, umax, signs, K0, axis):
+    """Step length τ in (0, h] at which ``S_axis`` crosses zero (Newton, bracketed).
+
+    Each evaluation is one exact DOP853 step of length τ from the step start
+    (without sensitivities), so the root is as accurate as the integrator.
+    """
+    Yc = Y[:NY].copy()
+    K0c = K0[:NY].copy()
+    lo = 0.0
+    hi = h
+    s_lo = Yc[11 + axis] / J[axis]
+    tau = h * 0.5
+    # secant start from the end points
+    Yh, Kh = _dop853_step(Yc, h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, K0c)
+    s_hi = Yh[11 + axis] / J[axis]
+    if s_hi != s_lo:
+        tau = h * s_lo / (s_lo - s_hi)
+    if not (tau > 0.0 and tau < h):
+        tau = 0.5 * h
+    for it in range(60):
+        Yt, Kt = _dop853_step(Yc, tau, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, K0c)
+        s = Yt[11 + axis] / J[axis]
+        sd = Kt[12][11 + axis] / J[axis]
+        if (s > 0.0) == (s_lo > 0.0):
+            lo = tau
+        else:
+            hi = tau
+        if abs(s) < 1e-15 or hi - lo < 1e-15 * max(1.0, h):
+            break
+        new = tau - s / sd if sd != 0.0 else 0.5 * (lo + hi)
+        if not (new > lo and new < hi):
+            new = 0.5 * (lo + hi)
+        if abs(new - tau) < 1e-16 * max(1.0, h):
+            tau = new
+            break
+        tau = new
+    return tau
+
+
+@njit(cache=True)
+def hamiltonian(y, J, umax, mode, p, eps, signs):
+    """``H`` without the ``λ0`` term: ``λqᵀ q̇ + λωᵀ ω̇``."""
+    u, _ = control(y, J, umax, mode, p, eps, signs)
+    f = ext_rhs(y, u, J)
+    h = 0.0
+    for i in range(7):
+        h += y[7 + i] * f[i]
+    return h

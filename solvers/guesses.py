@@ -1,0 +1,151 @@
+"""Initial guesses for the indirect solvers, all behind one ``Guess`` type.
+
+A ``Guess`` is given in the units of the problem (the same units as a
+``SlewSolution``): ``costate0 = [λq(0) (4), λω(0) (3)]`` (any positive scale, any
+gauge: the solver projects out the component of ``λq(0)`` along ``q(0)``), ``tf``,
+optionally the switch times per axis and the sign of each axis's first arc (a
+bang-bang guess can then go straight to the exact switch-time solver), and
+optionally further ``candidates`` tried in order. A learned model returns the same
+type (``Guess(costate0=..., tf=..., switch_times=..., source="learned")``).
+
+Classical guesses provided here:
+
+* ``eigenaxis_guess`` — the analytic eigenaxis costates of the seed report
+  (eqs. 39–44): ``μ = -n``, ``λω(0) = -(tf/4) n`` in nondimensional units, with ``n``
+  the eigenaxis in body axes and ``tf`` that of the rest-to-rest eigenaxis slew with
+  the largest constant acceleration the bound allows about ``n``. Exact for the
+  2-norm ball and a symmetric body at rest.
+* ``symmetric_images`` — images of a guess under the signed axis permutations that map
+  the problem onto itself (mirror-image extremals, e.g. the 180° case of R1).
+* ``perturbed`` — seeded random perturbations of a guess (multi-start).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from slew_env.core.quaternion import qmul, qconj
+
+
+@dataclass
+class Guess:
+    costate0: np.ndarray
+    tf: float
+    switch_times: Optional[List[np.ndarray]] = None
+    u_first: Optional[np.ndarray] = None
+    source: str = "user"
+    candidates: list = field(default_factory=list)
+
+    def __post_init__(self):
+        c = np.asarray(self.costate0, dtype=float)
+        if c.shape != (7,):
+            raise ValueError(f"guess.costate0: expected 7 numbers [λq (4), λω (3)], got shape {c.shape}")
+        if not np.all(np.isfinite(c)):
+            raise ValueError("guess.costate0: all entries must be finite")
+        self.costate0 = c
+        if not (math.isfinite(float(self.tf)) and float(self.tf) > 0.0):
+            raise ValueError(f"guess.tf: must be a positive finite time, got {self.tf}")
+        self.tf = float(self.tf)
+        if self.switch_times is not None:
+            if len(self.switch_times) != 3:
+                raise ValueError("guess.switch_times: expected a list of 3 arrays (one per axis)")
+            self.switch_times = [np.asarray(s, dtype=float).ravel() for s in self.switch_times]
+        if self.u_first is not None:
+            self.u_first = np.sign(np.asarray(self.u_first, dtype=float))
+
+    def all(self):
+        """This guess followed by its candidates."""
+        return [self] + list(self.candidates)
+
+    # --- conversion to / from the solver's nondimensional unknowns
+    def to_nondim(self, bvp):
+        """``(z, T)``: normalised ``[μ, λω(0)]`` and the nondimensional final time."""
+        lq = self.costate0[:4]
+        mu = qmul(qconj(bvp.q0), lq)[1:4]
+        z = np.concatenate([mu / bvp.tau, self.costate0[4:] / bvp.tau ** 2])
+        n = np.linalg.norm(z)
+        if n == 0:
+            raise ValueError("guess.costate0: the costate is zero in the solver's gauge")
+        return z / n, self.tf / bvp.tau
+
+
+def from_nondim(bvp, z, T, source, switch_times=None, u_first=None):
+    lq = qmul(bvp.q0, np.array([0.0, z[0], z[1], z[2]])) * bvp.tau
+    lw = np.asarray(z[3:6]) * bvp.tau ** 2
+    st = None if switch_times is None else [np.asarray(s) * bvp.tau for s in switch_times]
+    return Guess(np.concatenate([lq, lw]), T * bvp.tau, st, u_first, source)
+
+
+def eigenaxis_axis_angle(problem):
+    """Eigenaxis ``n`` (body axes, unit) and angle ``θ`` in [0, π] from ``q0`` to ``qf``."""
+    d = qmul(qconj(problem.q0), problem.qf)
+    if d[0] < 0:
+        d = -d
+    v = np.linalg.norm(d[1:])
+    if v < 1e-15:
+        return np.array([1.0, 0.0, 0.0]), 0.0
+    return d[1:] / v, 2.0 * math.atan2(v, d[0])
+
+
+def eigenaxis_acceleration(J, umax, p, n):
+    """Largest constant angular acceleration about unit axis ``n`` the bound allows (at rest)."""
+    a = np.abs(J * n) / umax     # torque per unit acceleration, in units of the bound
+    if math.isinf(p):
+        return 1.0 / float(np.max(a))
+    return 1.0 / float(np.sum(a ** p) ** (1.0 / p))
+
+
+def eigenaxis_guess(bvp, long_way=False) -> Guess:
+    """Seed report eqs. 39–44, generalised to any inertia and bound (nondimensional)."""
+    n, th = eigenaxis_axis_angle(bvp.problem)
+    if long_way:
+        n, th = -n, 2.0 * math.pi - th
+    acc = eigenaxis_acceleration(bvp.J, bvp.umax, bvp.problem.torque_norm, n)
+    T = 2.0 * math.sqrt(max(th, 1e-12) / acc)
+    z = np.concatenate([-n, -(T / 4.0) * n])
+    z /= np.linalg.norm(z)
+    return from_nondim(bvp, z, T, "eigenaxis-long" if long_way else "eigenaxis")
+
+
+def problem_symmetries(problem, tol=1e-12):
+    """Signed axis permutations ``P`` (3x3) that map the problem onto itself.
+
+    ``P`` acts on axial vectors as ``det(P) P``. It must preserve the inertia and torque
+    bound, and the relative rotation ``q0* ⊗ qf`` (the body-frame slew) up to sign.
+    """
+    out = []
+    J, u = problem.inertia, problem.torque_max
+    n, th = eigenaxis_axis_angle(problem)
+    rot = n * math.sin(th / 2.0)
+    for perm in itertools.permutations(range(3)):
+        for sgn in itertools.product((1.0, -1.0), repeat=3):
+            P = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                P[i, j] = sgn[i]
+            if np.allclose(P @ P.T, np.eye(3)) and np.allclose(np.abs(P) @ J, J, rtol=tol, atol=0) \
+                    and np.allclose(np.abs(P) @ u, u, rtol=tol, atol=0):
+                d = np.linalg.det(P)
+                if np.allclose(d * (P @ rot), rot, atol=1e-12) and problem.is_rest_to_rest:
+                    out.append(d * P)
+    return out
+
+
+def symmetric_images(bvp, z, T):
+    """Images of nondimensional ``(z, T)`` under the problem's symmetries (identity excluded)."""
+    imgs = []
+    for A in problem_symmetries(bvp.problem):
+        if np.allclose(A, np.eye(3)):
+            continue
+        zi = np.concatenate([A @ z[:3], A @ z[3:]])
+        if not any(np.allclose(zi, w, atol=1e-9) for w, _ in imgs) and not np.allclose(zi, z, atol=1e-9):
+            imgs.append((zi, T))
+    return imgs
+
+
+def perturbed(z, T, rng, scale):
+    zz = z + scale * rng.normal(size=6)
+    return zz / np.linalg.norm(zz), T * (1.0 + 0.1 * scale * rng.normal())

@@ -1,0 +1,148 @@
+"""Indirect (Pontryagin) routes to one extremal from one guess.
+
+Per-axis bound: switch-time Newton from a guess that carries a switching structure;
+otherwise smoothing continuation (tanh, ε ↓) and, along the path, the bang-bang
+structures it suggests are tried with the exact switch-time solver. The result is
+then re-propagated with event-driven switching (no structure imposed): if the
+switching law produces other switches the structure is corrected and solved again.
+
+p-norm bound: event-free shooting on the closed-form control (single or multiple
+shooting), directly and, if that fails, by norm continuation from p = 2.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from .homotopy import continue_path, set_pnorm, set_tanh, structure_candidates
+from .shooting import newton_shoot
+from .switch_time import Structure, solve_switch_times
+
+
+@dataclass
+class Attempt:
+    success: bool
+    z: np.ndarray
+    T: float
+    structure: Optional[Structure]
+    nit: int
+    nfev: int
+    route: str
+    message: str
+    residual: float = math.inf
+    history: list = field(default_factory=list)
+
+
+def _event_check(bvp, z, T, structure, tol=1e-8):
+    """Event-driven propagation of ``(z, T)``: does it reproduce ``structure``?"""
+    bvp.set_mode("bang")
+    tr = bvp.record(z, T)
+    if not tr.ok:
+        return False, None, tr
+    ev = Structure(tr.signs0, tr.switch_axis.astype(np.int64), tr.switch_t)
+    if structure is None:
+        return False, ev, tr
+    same = (np.array_equal(ev.signs0, structure.signs0) and ev.n == structure.n
+            and np.array_equal(ev.axes, structure.axes)
+            and np.allclose(ev.times, structure.times, atol=tol * max(1.0, T), rtol=0))
+    return same, ev, tr
+
+
+def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", max_rounds=3,
+                    tol=1e-12):
+    """Exact bang-bang solve for a structure, then correct the structure until the
+    event-driven propagation reproduces it."""
+    bvp.set_mode("bang")
+    st = structure
+    last = None
+    for _ in range(max_rounds):
+        sr = solve_switch_times(bvp, z, st, T, tol=tol)
+        nit += sr.nit
+        nfev += sr.nfev
+        last = sr
+        if not sr.success:
+            return Attempt(False, sr.z, sr.T, sr.structure, nit, nfev, route,
+                           f"switch-time Newton: {sr.message} (residual {sr.residual_norm:.2e})",
+                           sr.residual_norm, sr.history)
+        same, ev, _ = _event_check(bvp, sr.z, sr.T, sr.structure)
+        if same:
+            return Attempt(True, sr.z, sr.T, sr.structure, nit, nfev, route, "converged",
+                           sr.residual_norm, sr.history)
+        if ev is None:
+            break
+        # the switching law switches elsewhere: adopt its structure and solve again
+        z, T, st = sr.z, sr.T, ev
+    r = last.residual_norm if last else math.inf
+    return Attempt(False, z, T, st, nit, nfev, route,
+                   "the switching law does not reproduce the solved switch structure", r)
+
+
+def per_axis_from_guess(bvp, z, T, structure=None, *, eps_start=0.3, eps_min=1e-3,
+                        deadline=math.inf):
+    """One attempt at the exact per-axis extremal from one nondimensional guess."""
+    nit = nfev = 0
+    if structure is not None:
+        a = solve_structure(bvp, z, T, structure, route="switch-time (guess structure)")
+        if a.success:
+            return a
+        nit, nfev = a.nit, a.nfev
+    found = {}
+
+    def try_point(pt):
+        nonlocal nit, nfev
+        if time.perf_counter() > deadline:
+            return True
+        if pt.param > 0.05:
+            return False
+        bvp.set_mode("tanh", eps=pt.param)
+        for st in structure_candidates(bvp, pt.z, pt.T):
+            a = solve_structure(bvp, pt.z, pt.T, st, route=f"tanh continuation to eps={pt.param:.3g} + switch-time")
+            nit += a.nit
+            nfev += a.nfev
+            if a.success:
+                a.nit, a.nfev = nit, nfev
+                found["a"] = a
+                return True
+        bvp.set_mode("tanh", eps=pt.param)
+        return False
+
+    path = continue_path(bvp, z, T, eps_start, eps_min, set_param=set_tanh, on_point=try_point)
+    nit += path.nit
+    nfev += path.nfev
+    bvp.set_mode("bang")
+    if "a" in found:
+        a = found["a"]
+        a.nit, a.nfev = nit, nfev
+        return a
+    msg = path.message if not path.success else f"no bang-bang structure near the smoothed extremal (eps ≥ {eps_min:g})"
+    return Attempt(False, z, T, None, nit, nfev, "tanh continuation", msg)
+
+
+def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-10):
+    """One attempt at the p-norm extremal: direct shooting, else continuation from p = 2."""
+    bvp.set_mode("pnorm", p=p)
+    r = newton_shoot(bvp, z, T, segments=segments, tol=tol, max_step=0.5)
+    if r.success:
+        return Attempt(True, r.p, r.T, None, r.nit, r.nfev,
+                       "multiple shooting" if segments > 1 else "single shooting", "converged",
+                       r.residual_norm, r.history)
+    nit, nfev = r.nit, r.nfev
+    if p != 2.0:
+        start, stop = (2.0, p)
+        path = continue_path(bvp, z, T, start, stop, set_param=set_pnorm, factor=1.5, tol=tol)
+        nit += path.nit
+        nfev += path.nfev
+        if path.success:
+            last = path.points[-1]
+            bvp.set_mode("pnorm", p=p)
+            r = newton_shoot(bvp, last.z, last.T, segments=segments, tol=tol, max_step=0.5)
+            nit += r.nit
+            nfev += r.nfev
+            if r.success:
+                return Attempt(True, r.p, r.T, None, nit, nfev, "norm continuation from p=2", "converged",
+                               r.residual_norm, r.history)
+    return Attempt(False, r.p, r.T, None, nit, nfev, "shooting", r.message, r.residual_norm, r.history)

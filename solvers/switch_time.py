@@ -1,0 +1,208 @@
+"""Bang-bang extremals with a fixed switching structure (switch-time shooting).
+
+Event-driven shooting on the bang-bang law has a Newton matrix that is rank
+deficient whenever the iterate has fewer switches than boundary conditions: the
+states then depend on the costates only through the switch times. Here the
+structure (sign of each axis's first arc and the axis of each switch, in order)
+is fixed, and the unknowns are the costates ``z``, the switch instants and ``tf``::
+
+    unknowns  z (6), t_1 … t_n (switch instants, any order), tf
+    residuals |z|² - 1,  S_{a_k}(t_k) = 0,  boundary conditions (6)
+
+which is square and smooth. The structure comes from a smoothed extremal
+(crossings, plus a pair of switches wherever a switching function grazes zero).
+The answer is then checked by event-driven propagation: the same switches must
+appear at the same instants and no others.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .attitude_bvp import NY
+
+
+@dataclass
+class Structure:
+    signs0: np.ndarray          # (3,) sign of each axis's first arc
+    axes: np.ndarray            # (n,) axis of each switch, in time order
+    times: np.ndarray           # (n,) switch instants (a guess, or the answer)
+
+    @property
+    def n(self):
+        return int(self.axes.shape[0])
+
+
+@dataclass
+class SwitchTimeResult:
+    success: bool
+    message: str
+    z: np.ndarray
+    durations: np.ndarray
+    structure: Structure
+    residual_norm: float
+    nit: int
+    nfev: int
+    history: list = field(default_factory=list)
+
+    @property
+    def T(self):
+        return float(np.sum(self.durations))
+
+
+def _residual(bvp, z, times, T, st, want_jac):
+    """Residual and Jacobian in the unknowns ``x = [z (6), switch times (n), T]``.
+
+    Switch times are absolute and sorted at each evaluation, so switches on
+    different axes may change order freely (the control is separable by axis).
+    """
+    from .core.attitude_flow import ext_rhs
+    n = st.n
+    nx = 6 + n + 1
+    y, dy0 = bvp.initial(z)
+    G = np.zeros((NY, nx))
+    G[:, :6] = dy0
+    signs = st.signs0.astype(float).copy()
+    r = np.empty(1 + n + 6)
+    Jm = np.zeros((1 + n + 6, nx)) if want_jac else None
+    rp, drp = bvp.param_residual(z)
+    r[0] = rp[0]
+    if want_jac:
+        Jm[0, :6] = drp[0]
+    order = np.argsort(times, kind="stable")
+    t_prev = 0.0
+    eye = np.eye(NY)
+    for j in list(order) + [-1]:
+        t_next = T if j < 0 else float(times[j])
+        dt = t_next - t_prev
+        if dt > 0.0:
+            y1, Phi, ok = bvp.arc(y, dt, signs, eye if want_jac else None)
+            if not ok:
+                return None, None
+            if want_jac:
+                G = Phi @ G
+            y = y1
+        t_prev = max(t_prev, t_next)
+        if j < 0:
+            break
+        a = int(st.axes[j])
+        r[1 + j] = y[11 + a] / bvp.J[a]
+        if want_jac:
+            f = ext_rhs(y, bvp.umax * signs, bvp.J)
+            Jm[1 + j] = G[11 + a] / bvp.J[a]
+            Jm[1 + j, 6 + j] += f[11 + a] / bvp.J[a]
+            # moving the switch later keeps the old torque on axis a for longer
+            G[4 + a, 6 + j] += 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
+        signs[a] = -signs[a]
+    rt, dry, drT = bvp.terminal(y, T)
+    r[1 + n:] = rt
+    if want_jac:
+        f = ext_rhs(y, bvp.umax * signs, bvp.J)
+        G[:, -1] += f
+        Jm[1 + n:] = dry @ G
+        Jm[1 + n:, -1] += drT
+    if not np.all(np.isfinite(r)):
+        return None, None
+    return r, Jm
+
+
+def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,
+                       max_step=0.3):
+    """Newton on (costates, switch times, final time) for a fixed bang-bang structure."""
+    st = structure
+    n = st.n
+    x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)]])
+    nfev = 0
+
+    def split(x):
+        return x[:6], x[6:6 + n], float(x[-1])
+
+    r, Jm = _residual(bvp, *split(x), st, True)
+    nfev += 1
+    if r is None:
+        return SwitchTimeResult(False, "propagation failed at the guess", x[:6], x[6:], st, np.inf, 0, nfev)
+    hist = []
+    nit = 0
+    phi = float(r @ r)
+    msg = "maximum iterations reached"
+    ok = False
+    scale = np.concatenate([np.ones(6), np.full(n + 1, max(float(T0), 1e-3))])
+    while True:
+        rn = float(np.max(np.abs(r)))
+        hist.append(rn)
+        if rn < tol:
+            ok, msg = True, "converged"
+            break
+        if nit >= max_iter:
+            break
+        nit += 1
+        dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]
+        big = float(np.max(np.abs(dx) / scale))
+        if big > max_step:
+            dx *= max_step / big
+        accepted = False
+        alpha = 1.0
+        while alpha > 1e-8:
+            xt = x + alpha * dx
+            zt, tt, Tt = split(xt)
+            if np.all(tt >= 0.0) and np.all(tt <= Tt) and Tt > 0.0:
+                rt, _ = _residual(bvp, zt, tt, Tt, st, False)
+                nfev += 1
+                if rt is not None and float(rt @ rt) < (1 - 1e-4 * alpha) * phi:
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            msg = "line search failed"
+            break
+        x = xt
+        r, Jm = _residual(bvp, *split(x), st, True)
+        nfev += 1
+        if r is None:
+            msg = "propagation failed"
+            break
+        phi = float(r @ r)
+    z, times, T = split(x)
+    order = np.argsort(times, kind="stable")
+    res_st = Structure(st.signs0.copy(), st.axes[order].copy(), times[order].copy())
+    d = np.diff(np.concatenate([[0.0], times[order], [T]]))
+    return SwitchTimeResult(ok, msg, z, d, res_st, float(np.max(np.abs(r))) if r is not None else np.inf,
+                            nit, nfev, hist)
+
+
+def structure_from_trajectory(t, S, graze=0.0):
+    """Switching structure read off sampled switching functions ``S`` (n, 3).
+
+    Sign changes become switches (instants by linear interpolation). With
+    ``graze > 0``, a local minimum of ``|S_i|`` below ``graze · max|S_i|`` that is not
+    a crossing becomes a pair of switches around the minimum: the bang-bang
+    extremal near a smoothed one often has a short arc there.
+    """
+    events = []
+    for i in range(3):
+        s = S[:, i]
+        amax = float(np.max(np.abs(s))) or 1.0
+        for k in range(len(t) - 1):
+            if s[k] == 0.0 and k > 0:
+                continue
+            if s[k] * s[k + 1] < 0.0 or (s[k + 1] == 0.0 and k + 2 < len(t) and s[k] * s[k + 2] < 0):
+                tk = t[k] + (t[k + 1] - t[k]) * s[k] / (s[k] - s[k + 1]) if s[k] != s[k + 1] else t[k]
+                events.append((tk, i))
+        if graze > 0.0:
+            a = np.abs(s)
+            for k in range(1, len(t) - 1):
+                if a[k] <= a[k - 1] and a[k] < a[k + 1] and a[k] < graze * amax and s[k - 1] * s[k + 1] > 0:
+                    w = max(1e-4 * (t[-1] - t[0]), 0.5 * (t[k + 1] - t[k - 1]) * 0.1)
+                    events.append((t[k] - w, i))
+                    events.append((t[k] + w, i))
+    events.sort()
+    s0 = S[0]
+    signs0 = np.array([-np.sign(v) if v != 0 else 1.0 for v in s0])
+    if events:
+        times = np.array([e[0] for e in events])
+        axes = np.array([e[1] for e in events], dtype=np.int64)
+    else:
+        times = np.zeros(0)
+        axes = np.zeros(0, dtype=np.int64)
+    return Structure(signs0, axes, times)
