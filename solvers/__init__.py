@@ -1,1 +1,11 @@
-"""solvers: time-optimal slew solvers (indirect shooting, multiple shooting, continuation)."""
+"""solvers: time-optimal slew solvers (indirect shooting, multiple shooting, continuation).
+
+Entry point: ``solvers.solve(problem, method=..., guess=..., **options) -> SlewSolution``.
+"""
+from .api import METHODS, solve
+from .guesses import Guess, eigenaxis_guess
+from .solution import STATUS_MESSAGES, SlewSolution
+from .eigenaxis import eigenaxis_slew, EigenaxisSlew
+
+__all__ = ["solve", "METHODS", "Guess", "eigenaxis_guess", "SlewSolution", "STATUS_MESSAGES",
+           "eigenaxis_slew", "EigenaxisSlew"]

@@ -1,0 +1,280 @@
+"""``solvers.solve``: method dispatch, multi-start over candidates, verification.
+
+Methods:
+
+* ``"indirect"`` — single shooting. Per-axis bound: exact bang-bang extremal by the
+  switch-time solver (structure from the guess, or from a smoothing continuation),
+  then event-driven re-propagation. p-norm bound: shooting on the closed-form control,
+  with norm continuation from p = 2 as fallback.
+* ``"multiple-shooting"`` — the same routes with every shooting stage done on
+  ``segments`` segments (default 4); the per-axis answer is polished by event-driven
+  multiple shooting.
+* ``"auto"`` — currently ``"indirect"`` (the cone and pointing-target routes will add to it).
+
+Several extremals can exist (mirror images of the 180° slew; a worse local optimum of
+R5 at 29.135 s). ``solve`` tries candidates in order — the given guess and its own
+candidates, the eigenaxis guess, its images under the problem's symmetries, the
+per-axis switching-structure templates, the long-way eigenaxis, then seeded
+perturbations — and returns the best verified one.
+It stops when ``max_candidates`` have been tried; or, once ``min_candidates`` have
+been tried, when ``enough`` have converged and the best final time was reached by at
+least two of them; or when the ``time_budget`` runs out. ``SlewSolution.n_candidates`` says how many it tried.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Optional
+
+import numpy as np
+
+from slew_env import SlewProblem
+from .attitude_bvp import AttitudeBVP, NY
+from .core import attitude_flow as af
+from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
+from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solve_structure
+from .shooting import newton_shoot
+from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
+                       STATUS_VERIFICATION_FAILED, SlewSolution)
+from .switch_time import Structure
+from .verify import verify
+
+METHODS = ("auto", "indirect", "multiple-shooting")
+_OPTIONS = {"segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
+            "eps_min", "rtol", "atol"}
+
+
+def _as_problem(problem):
+    if isinstance(problem, SlewProblem):
+        return problem
+    if isinstance(problem, dict):
+        return SlewProblem.from_dict(problem)
+    raise ValueError(f"problem: expected a SlewProblem or a dict, got {type(problem).__name__}")
+
+
+def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
+    if g.switch_times is None:
+        return None
+    ev = sorted((float(t) / bvp.tau, i) for i in range(3) for t in g.switch_times[i])
+    if g.u_first is not None:
+        s0 = np.where(g.u_first == 0, 1.0, g.u_first)
+    else:
+        z, _ = g.to_nondim(bvp)
+        y0, _ = bvp.initial(z)
+        s0 = bvp.initial_signs(y0)
+    return Structure(np.asarray(s0, float), np.array([e[1] for e in ev], dtype=np.int64),
+                     np.array([e[0] for e in ev]))
+
+
+def _candidates(bvp, guess, max_candidates, seed, per_axis):
+    """Yields ``(z, T, structure, source)`` in the order they are tried.
+
+    Order: the user's guess and its candidates; the eigenaxis guess (smoothing
+    continuation); per-axis only, the structure templates around it (cheap: one
+    switch-time Newton each); the long-way eigenaxis; images of the eigenaxis guess
+    under the problem's symmetries; seeded perturbations of the eigenaxis guess.
+    """
+    seen = []
+
+    def fresh(z, st):
+        key = (np.round(z, 6).tobytes(), None if st is None else (st.axes.tobytes(), st.signs0.tobytes()))
+        if key in seen:
+            return False
+        seen.append(key)
+        return True
+
+    count = 0
+    if guess is not None:
+        for g in guess.all():
+            z, T = g.to_nondim(bvp)
+            st = _structure_from_guess(g, bvp)
+            if fresh(z, st):
+                yield z, T, st, g.source
+                count += 1
+    rng = np.random.default_rng(seed)
+    g = eigenaxis_guess(bvp)
+    z0, T0 = g.to_nondim(bvp)
+    if fresh(z0, None):
+        yield z0, T0, None, g.source
+        count += 1
+    if per_axis:
+        for zt, Tt, (s0, ax, tt), name in structure_templates(bvp, z0, T0, rng):
+            if count >= max_candidates:
+                return
+            st = Structure(s0, ax, tt)
+            if fresh(zt, st):
+                yield zt, Tt, st, name
+                count += 1
+    gl = eigenaxis_guess(bvp, long_way=True)
+    zl, Tl = gl.to_nondim(bvp)
+    extra = [(zl, Tl, gl.source)] + [(zi, Ti, "eigenaxis-image") for zi, Ti in symmetric_images(bvp, z0, T0)]
+    for z, T, src in extra:
+        if count >= max_candidates:
+            return
+        if fresh(z, None):
+            yield z, T, None, src
+            count += 1
+    k = 0
+    while count < max_candidates and k < 10 * max_candidates:
+        scale = (0.2, 0.4, 0.6)[k % 3]
+        zp, Tp = perturbed(z0, T0, rng, scale)
+        k += 1
+        if fresh(zp, None):
+            yield zp, Tp, None, f"eigenaxis-perturbed({scale:g})"
+            count += 1
+
+
+def _polish_multiple(bvp, a: Attempt, segments):
+    """Event-driven multiple shooting from an exact switch-time answer (consistency polish)."""
+    bvp.set_mode("bang")
+    r = newton_shoot(bvp, a.z, a.T, segments=segments, tol=1e-11, max_step=0.1)
+    if r.success and abs(r.T - a.T) < 1e-8 * a.T:
+        a.z, a.T = r.p, r.T
+        a.route += f" + event-driven multiple shooting ({segments} segments)"
+    a.nit += r.nit
+    a.nfev += r.nfev
+    return a
+
+
+def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
+    tau = bvp.tau
+    umax0 = float(problem.torque_max.max())
+    H0 = bvp.hamiltonian(tr.y[0], tr.signs[0])
+    c = -1.0 / H0 if H0 < 0 else 1.0
+    y0, _ = bvp.initial(a.z)
+    costate0 = np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]])
+    t = tr.t * tau
+    u_nd = np.array([af.control(tr.y[k], bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs[k])[0]
+                     for k in range(tr.t.shape[0])])
+    u = u_nd * umax0
+    costate = np.hstack([c * tau * tr.y[:, 7:11], c * tau ** 2 * tr.y[:, 11:14]])
+    if bvp.mode == af.MODE_BANG:
+        sw = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
+        u_first = tr.signs0.copy()
+        torque = problem.torque_max.copy()
+
+        def control(tq):
+            tq = np.asarray(tq, dtype=float)
+            flips = np.stack([np.searchsorted(sw[i], tq, side="right") for i in range(3)], axis=-1)
+            return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    else:
+        sw = [np.zeros(0)] * 3
+        u_first = np.sign(u[0])
+
+        def control(tq):
+            tq = np.asarray(tq, dtype=float)
+            return np.stack([np.interp(tq, t, u[:, i]) for i in range(3)], axis=-1)
+    return dict(tf=a.T * tau, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
+                q=tr.y[:, 0:4].copy(), omega=tr.y[:, 4:7] / tau, u=u, costate=costate,
+                _control=control, route=a.route, guess=guess_src, verification=checks)
+
+
+def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
+    """Time-optimal slew of ``problem`` (``SlewProblem`` or dict).
+
+    Options: ``segments`` (multiple shooting, default 4), ``max_candidates`` (default 24),
+    ``min_candidates`` (tried before stopping early, default 8), ``enough`` (converged
+    candidates before stopping early, default 2), ``seed`` (for
+    the perturbed candidates, default 0), ``time_budget`` (s, default 60), ``tols``
+    (verification tolerances, see ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400
+    steps), ``eps_min`` (end of the smoothing path, default 1e-3), ``rtol``/``atol``
+    (integrator).
+    """
+    t_start = time.perf_counter()
+    prob = _as_problem(problem)
+    if method not in METHODS:
+        raise ValueError(f"method: unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    unknown = set(options) - _OPTIONS
+    if unknown:
+        raise ValueError(f"options: unknown option(s) {sorted(unknown)}; known: {sorted(_OPTIONS)}")
+    if guess is not None and not isinstance(guess, Guess):
+        raise ValueError(f"guess: expected a solvers.Guess, got {type(guess).__name__}")
+    if prob.cones:
+        raise ValueError("cones: keep-out cones are not supported by the indirect solvers yet "
+                         f"({len(prob.cones)} given)")
+    if prob.qf is None:
+        raise ValueError("sensor_target: pointing-only targets are not supported by the indirect "
+                         "solvers yet; give a full attitude qf")
+    segments = int(options.get("segments", 4 if method == "multiple-shooting" else 1))
+    if segments < 1:
+        raise ValueError(f"segments: must be a positive integer, got {segments}")
+    max_candidates = int(options.get("max_candidates", 24))
+    min_candidates = int(options.get("min_candidates", 8))
+    enough = int(options.get("enough", 2))
+    seed = options.get("seed", 0)
+    budget = float(options.get("time_budget", 60.0))
+    tols = options.get("tols")
+    n_dense = int(options.get("n_dense", 400))
+    eps_min = float(options.get("eps_min", 1e-3))
+    kw = {}
+    if "rtol" in options:
+        kw["rtol"] = float(options["rtol"])
+    if "atol" in options:
+        kw["atol"] = float(options["atol"])
+    bvp = AttitudeBVP(prob, **kw)
+    per_axis = math.isinf(prob.torque_norm)
+    deadline = t_start + budget
+    method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
+
+    nit = nfev = 0
+    tried = 0
+    found = []   # (T, attempt, tr, checks, source)
+    failures = []
+    last_verif_fail = None
+    for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis):
+        if time.perf_counter() > deadline:
+            break
+        tried += 1
+        if per_axis and st is not None and src.startswith("template"):
+            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}")
+            if a.success and segments > 1:
+                a = _polish_multiple(bvp, a, segments)
+        elif per_axis:
+            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline)
+            if a.success and segments > 1:
+                a = _polish_multiple(bvp, a, segments)
+        else:
+            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments)
+        nit += a.nit
+        nfev += a.nfev
+        if not a.success:
+            failures.append(f"{src}: {a.message}")
+            continue
+        if per_axis:
+            bvp.set_mode("bang")
+        else:
+            bvp.set_mode("pnorm", p=prob.torque_norm)
+        ok, checks, text, tr = verify(bvp, a.z, a.T, a.structure, tols=tols, n_dense=n_dense)
+        nfev += 2
+        if not ok:
+            last_verif_fail = (a, tr, checks, text, src)
+            failures.append(f"{src}: {text}")
+            continue
+        found.append((a.T, a, tr, checks, src))
+        if len(found) >= enough and tried >= min_candidates:
+            Ts = sorted(f[0] for f in found)
+            if len(Ts) >= 2 and abs(Ts[1] - Ts[0]) <= 1e-7 * Ts[0]:
+                break
+    wall = time.perf_counter() - t_start
+    common = dict(nit=nit, nfev=nfev, method=method_used, n_candidates=tried, problem=prob)
+    if found:
+        best_T = min(f[0] for f in found)
+        # among extremals with the same final time, report the first one found
+        T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
+        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
+        msg = STATUS_MESSAGES[STATUS_SUCCESS]
+        if len(cands) > 1:
+            msg += f" Best of {len(cands)} distinct extremals found (final times {cands})."
+        return SlewSolution(True, STATUS_SUCCESS, msg, wall_time=time.perf_counter() - t_start,
+                            candidates_tf=cands, **common, **fields)
+    if last_verif_fail is not None:
+        a, tr, checks, text, src = last_verif_fail
+        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        return SlewSolution(False, STATUS_VERIFICATION_FAILED,
+                            f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}", wall_time=wall,
+                            **common, **fields)
+    status = STATUS_BUDGET_EXHAUSTED if time.perf_counter() > deadline else STATUS_NOT_CONVERGED
+    detail = "; ".join(failures[:3])
+    return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} Tried {tried} candidate(s): {detail}",
+                        wall_time=wall, **common)

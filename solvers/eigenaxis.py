@@ -1,0 +1,150 @@
+"""The eigenaxis slew: the baseline planner most spacecraft fly today.
+
+Rest-to-rest rotation about the fixed eigenaxis ``n`` (body axes) by the angle ``θ``
+from ``q0`` to ``qf``: ``ω = θ̇ n``. For an asymmetric body the torque that keeps the
+rotation on the axis includes the gyroscopic part::
+
+    u = θ̈ J n + θ̇² (n × J n)
+
+We return the *fastest* such slew whose torque stays within the bound (per-axis or
+p-norm) and whose rates stay within ``rate_max``: time-optimal path parametrisation
+along ``θ`` in the phase plane ``s = θ̇²`` (maximum acceleration forward from rest,
+maximum deceleration backward from rest, under the maximum-velocity curve). For a
+symmetric body and the 2-norm ball this is ``tf = 2 sqrt(θ J / u_max)`` exactly.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from slew_env import SlewProblem
+from .guesses import eigenaxis_axis_angle
+
+
+@dataclass
+class EigenaxisSlew:
+    tf: float
+    axis: np.ndarray        # body axes
+    angle: float
+    theta: np.ndarray       # samples of the rotation angle
+    t: np.ndarray           # time at each sample
+    rate: np.ndarray        # θ̇ at each sample
+    u: np.ndarray           # torque at each sample (n, 3)
+
+
+def _accel_interval(a, c, U, p, s):
+    """Interval of feasible θ̈ at phase-plane speed ``s``; ``None`` when empty."""
+    lo, hi = -math.inf, math.inf
+    for i in range(3):   # per-axis bound; for a p-norm it brackets the feasible set
+        if abs(a[i]) < 1e-15:
+            if abs(c[i] * s) > U[i]:
+                return None
+            continue
+        b1 = (-U[i] - c[i] * s) / a[i]
+        b2 = (U[i] - c[i] * s) / a[i]
+        lo = max(lo, min(b1, b2))
+        hi = min(hi, max(b1, b2))
+    if lo > hi:
+        return None
+    if math.isinf(p):
+        return lo, hi
+
+    def g(x):
+        v = np.abs((a * x + c * s) / U)
+        m = float(np.max(v))
+        return m * float(np.sum((v / m) ** p)) ** (1.0 / p) if m > 0 else 0.0
+    # {x : g(x) ≤ 1} is an interval inside [lo, hi] (g convex): minimiser, then both edges
+    a_b, b_b = lo, hi
+    for _ in range(100):
+        m1 = a_b + (b_b - a_b) / 3.0
+        m2 = b_b - (b_b - a_b) / 3.0
+        if g(m1) < g(m2):
+            b_b = m2
+        else:
+            a_b = m1
+    xm = 0.5 * (a_b + b_b)
+    if g(xm) > 1.0:
+        return None
+
+    def edge(outer):
+        inner = xm
+        for _ in range(100):
+            mid = 0.5 * (inner + outer)
+            if g(mid) <= 1.0:
+                inner = mid
+            else:
+                outer = mid
+        return inner
+    return edge(lo), edge(hi)
+
+
+def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
+    """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds."""
+    if not isinstance(problem, SlewProblem):
+        problem = SlewProblem.from_dict(problem)
+    if problem.qf is None:
+        raise ValueError("sensor_target: the eigenaxis slew needs a full attitude target qf")
+    if not problem.is_rest_to_rest:
+        raise ValueError("omega0, omegaf: the eigenaxis slew is defined rest to rest")
+    n, th = eigenaxis_axis_angle(problem)
+    J, U, p = problem.inertia, problem.torque_max, problem.torque_norm
+    a = J * n
+    c = np.cross(n, J * n)
+    # maximum-velocity curve: largest s with a non-empty acceleration interval
+    s_rate = math.inf
+    if problem.rate_max is not None:
+        for i in range(3):
+            if abs(n[i]) > 1e-15:
+                s_rate = min(s_rate, (problem.rate_max[i] / abs(n[i])) ** 2)
+    hi = 1.0
+    while _accel_interval(a, c, U, p, hi) is not None and hi < 1e12:
+        hi *= 2.0
+    lo = 0.0
+    if hi < 1e12:
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            if _accel_interval(a, c, U, p, mid) is not None:
+                lo = mid
+            else:
+                hi = mid
+        s_mvc = lo
+    else:
+        s_mvc = math.inf
+    s_max = min(s_mvc, s_rate)
+    if th == 0.0:
+        z = np.zeros(1)
+        return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)))
+    theta = np.linspace(0.0, th, n_grid + 1)
+    dth = theta[1] - theta[0]
+
+    def amax(s):
+        iv = _accel_interval(a, c, U, p, min(s, s_max))
+        return iv[1] if iv is not None else 0.0
+
+    def amin(s):
+        iv = _accel_interval(a, c, U, p, min(s, s_max))
+        return iv[0] if iv is not None else 0.0
+
+    fwd = np.zeros_like(theta)
+    bwd = np.zeros_like(theta)
+    for k in range(n_grid):   # ds/dθ = 2 θ̈, midpoint rule
+        s = fwd[k]
+        sm = min(s + dth * amax(s), s_max)
+        fwd[k + 1] = min(s + 2.0 * dth * amax(sm), s_max)
+    for k in range(n_grid, 0, -1):
+        s = bwd[k]
+        sm = min(s - dth * amin(s), s_max)
+        bwd[k - 1] = min(s - 2.0 * dth * amin(sm), s_max)
+    s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
+    rate = np.sqrt(s_prof)
+    # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)
+    denom = rate[:-1] + rate[1:]
+    dt = np.where(denom > 0, 2.0 * dth / np.where(denom > 0, denom, 1.0), 0.0)
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+    acc = np.zeros_like(theta)
+    acc[:-1] = (s_prof[1:] - s_prof[:-1]) / (2.0 * dth)
+    acc[-1] = acc[-2]
+    u = acc[:, None] * a[None, :] + s_prof[:, None] * c[None, :]
+    return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u)

@@ -1,0 +1,118 @@
+"""``SlewSolution``: a scipy-style result with the extremal, in the problem's units."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, List, Optional
+
+import numpy as np
+
+# status -> message (scipy style: a fixed table; ``message`` may add details)
+STATUS_SUCCESS = 0
+STATUS_NOT_CONVERGED = 1
+STATUS_VERIFICATION_FAILED = 2
+STATUS_BUDGET_EXHAUSTED = 3
+
+STATUS_MESSAGES = {
+    STATUS_SUCCESS: "Verified extremal found.",
+    STATUS_NOT_CONVERGED: "No candidate converged.",
+    STATUS_VERIFICATION_FAILED: "A candidate converged but failed its own verification.",
+    STATUS_BUDGET_EXHAUSTED: "Time budget exhausted before any candidate converged.",
+}
+
+
+@dataclass
+class SlewSolution:
+    """Result of ``solvers.solve``.
+
+    Attributes (scipy style first): ``success``, ``status`` (see ``STATUS_MESSAGES``),
+    ``message``, ``nit`` (Newton iterations, all candidates), ``nfev`` (propagations),
+    ``wall_time`` (s). Then, in the problem's units: ``tf``; ``costate0 = [λq(0), λω(0)]``
+    in the gauge ``λq(0)·q(0) = 0`` and the scale ``H ≡ -1``; ``switch_times`` (3 arrays,
+    bang-bang only, empty for a p-norm bound); ``u_first`` (sign of each axis's first arc);
+    dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``;
+    ``method``, ``route`` (how the answer was reached), ``guess`` (which guess won);
+    ``n_candidates`` tried and ``candidates_tf`` (final times of all converged
+    candidates, the local optima seen); ``verification`` (dict of checks).
+    """
+    success: bool
+    status: int
+    message: str
+    nit: int
+    nfev: int
+    wall_time: float
+    tf: float = math.nan
+    costate0: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
+    switch_times: List[np.ndarray] = field(default_factory=lambda: [np.zeros(0)] * 3)
+    u_first: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    q: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    omega: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    u: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    costate: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
+    method: str = ""
+    route: str = ""
+    guess: str = ""
+    n_candidates: int = 0
+    candidates_tf: List[float] = field(default_factory=list)
+    verification: dict = field(default_factory=dict)
+    problem: Any = None
+    _control: Optional[Callable] = None
+
+    def control(self, t):
+        """Torque at time(s) ``t`` (problem units). Bang-bang: exact from the switch times."""
+        if self._control is None:
+            raise ValueError("control: this solution has no trajectory")
+        return self._control(t)
+
+    @property
+    def n_switches(self) -> int:
+        return int(sum(len(s) for s in self.switch_times))
+
+    def __repr__(self):
+        lines = [f"{k:>13}: {v}" for k, v in (
+            ("success", self.success), ("status", self.status), ("message", self.message),
+            ("tf", self.tf), ("switches", [len(s) for s in self.switch_times]),
+            ("u_first", self.u_first.tolist()), ("nit", self.nit), ("nfev", self.nfev),
+            ("wall_time", f"{self.wall_time:.4f} s"), ("method", self.method), ("route", self.route),
+            ("guess", self.guess), ("n_candidates", self.n_candidates))]
+        return "\n".join(lines)
+
+    def to_dict(self, dense=True) -> dict:
+        """JSON-ready dict (see README, 'Solution format')."""
+        def clean(x):
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, (list, tuple)):
+                return [clean(v) for v in x]
+            if isinstance(x, np.ndarray):
+                return clean(x.tolist())
+            if isinstance(x, (np.floating, float)):
+                x = float(x)
+                return x if math.isfinite(x) else None
+            if isinstance(x, (np.integer,)):
+                return int(x)
+            if isinstance(x, np.bool_):
+                return bool(x)
+            return x
+        d = {
+            "success": self.success, "status": self.status, "message": self.message,
+            "tf": self.tf, "costate0": self.costate0, "switch_times": self.switch_times,
+            "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
+            "wall_time_s": self.wall_time, "method": self.method, "route": self.route,
+            "guess": self.guess, "n_candidates": self.n_candidates,
+            "candidates_tf": self.candidates_tf, "verification": self.verification,
+        }
+        if self.problem is not None:
+            d["problem"] = self.problem.to_dict()
+        if dense:
+            d["t"] = self.t
+            d["q"] = self.q
+            d["omega"] = self.omega
+            d["u"] = self.u
+            d["costate"] = self.costate
+        return clean(d)
+
+    def to_json(self, dense=True, **kw) -> str:
+        return json.dumps(self.to_dict(dense=dense), **kw)
