@@ -1,0 +1,388 @@
+"""``SlewEnv``: time-optimal rigid-body slews as a Gymnasium environment."""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .core import env_kernels as _k
+from .core import task as _t
+from .core.quaternion import qrotate
+from .problem import SlewProblem
+from .tasks import TaskDistribution, draw_task
+
+from . import DEFAULT_MAX_EPISODE_STEPS, ENV_ID  # noqa: F401 (re-exported)
+# A cone counts as violated when the sensor is inside it by more than this (rad):
+# the same tolerance SlewProblem allows for a start on a cone boundary.
+VIOLATION_TOL = 1e-9
+
+
+def observation_bounds(max_cones: int):
+    """(low, high) float32 arrays of the observation box for ``max_cones`` slots."""
+    n = _k.obs_length(max_cones)
+    low = np.zeros(n, dtype=np.float32)
+    high = np.zeros(n, dtype=np.float32)
+
+    def put(start, length, lo, hi):
+        low[start:start + length] = lo
+        high[start:start + length] = hi
+
+    put(_k.OB_DQ, 4, -1.0, 1.0)
+    low[_k.OB_DQ] = 0.0
+    put(_k.OB_W, 3, -_k.RATE_OBS_MAX, _k.RATE_OBS_MAX)
+    put(_k.OB_WF, 3, -_k.RATE_OBS_MAX, _k.RATE_OBS_MAX)
+    put(_k.OB_TARGET, 3, -1.0, 1.0)
+    put(_k.OB_SENSOR, 3, -1.0, 1.0)
+    put(_k.OB_J, 3, 0.0, 1.0)
+    put(_k.OB_UMAX, 3, 0.0, 1.0)
+    put(_k.OB_POINTING, 1, 0.0, 1.0)
+    put(_k.OB_INV_P, 1, 0.0, 1.0)
+    put(_k.OB_RATE_LIMIT, 3, 0.0, 1.0)
+    for k in range(max_cones):
+        o = _k.OB_CONES + _k.OB_CONE_STRIDE * k
+        put(o, 3, -1.0, 1.0)
+        put(o + 3, 1, 0.0, np.pi)
+        put(o + 4, 1, -np.pi, np.pi)
+        put(o + 5, 1, 0.0, 1.0)
+    return low, high
+
+
+def make_config(control_dt, substeps, success_bonus, violation_penalty, terminate_on_violation,
+                shaping, att_tol_deg, rate_tol, max_episode_steps=None) -> np.ndarray:
+    """Validate the environment arguments and pack them for the kernels."""
+    def positive(name, v):
+        v = float(v)
+        if not (math.isfinite(v) and v > 0.0):
+            raise ValueError(f"{name}: must be a positive finite number, got {v!r}")
+        return v
+
+    def nonneg(name, v):
+        v = float(v)
+        if not (math.isfinite(v) and v >= 0.0):
+            raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
+        return v
+
+    if int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps: must be a whole number >= 1, got {substeps!r}")
+    cfg = np.zeros(_k.CFG_LENGTH)
+    cfg[_k.C_DT] = positive("control_dt", control_dt)
+    cfg[_k.C_SUBSTEPS] = int(substeps)
+    cfg[_k.C_BONUS] = nonneg("success_bonus", success_bonus)
+    cfg[_k.C_PENALTY] = nonneg("violation_penalty", violation_penalty)
+    cfg[_k.C_TERMINATE] = 1.0 if terminate_on_violation else 0.0
+    cfg[_k.C_SHAPING] = nonneg("shaping", shaping)
+    cfg[_k.C_ATT_TOL] = math.radians(positive("att_tol_deg", att_tol_deg))
+    cfg[_k.C_RATE_TOL] = positive("rate_tol", rate_tol)
+    if max_episode_steps is not None:
+        if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps: must be a whole number >= 1, got {max_episode_steps!r}")
+        cfg[_k.C_MAX_STEPS] = int(max_episode_steps)
+    cfg[_k.C_VIOL_TOL] = VIOLATION_TOL
+    return cfg
+
+
+def resolve_distribution(task_distribution, max_cones):
+    dist = TaskDistribution.resolve(task_distribution)
+    if dist.max_cones > max_cones:
+        raise ValueError(f"max_cones: task distribution {dist.name!r} draws up to {dist.max_cones} "
+                         f"cones but max_cones={max_cones}")
+    return dist
+
+
+def check_max_cones(max_cones):
+    if int(max_cones) != max_cones or max_cones < 0:
+        raise ValueError(f"max_cones: must be a whole number >= 0, got {max_cones!r}")
+    return int(max_cones)
+
+
+def problem_to_task(problem, max_cones: int) -> tuple[SlewProblem, np.ndarray]:
+    """Validate a ``SlewProblem`` or dict and pack it with ``max_cones`` slots."""
+    prob = SlewProblem.from_dict(problem)
+    if len(prob.cones) > max_cones:
+        raise ValueError(f"cones: the problem has {len(prob.cones)} cones but this environment "
+                         f"observes at most max_cones={max_cones}; make it with a larger max_cones")
+    return prob, prob.to_task_array(max_cones)
+
+
+class SlewEnv(gym.Env):
+    """Time-optimal slew of a rigid spacecraft, with keep-out cones on a body sensor.
+
+    A rigid body with principal inertia ``J`` and a bounded torque must turn from
+    rest at ``q0`` to rest at a target (a full attitude ``qf`` or, pointing-only,
+    a sensor direction) as fast as possible, without the sensor entering any
+    keep-out cone and without exceeding a per-axis rate limit. Conventions
+    (scalar-first quaternions, body→inertial, Euler's equations) are those of
+    ``shared/CONVENTIONS.md``. ``T = sqrt(J_max / u_max)`` is the problem's time
+    unit; times, rates and rewards below are made scale-free with it.
+
+    **Action space** — ``Box(-1, 1, (3,), float32)``: normalised torque ``a``.
+
+    ====  =====================================================================
+    Num   Action
+    ====  =====================================================================
+    0-2   torque on body axis i as a fraction of ``u_max,i``
+    ====  =====================================================================
+
+    The torque is ``u_i = u_max,i · v_i`` with ``v`` = ``a`` clipped to [-1, 1]
+    and, for a p-norm bound, scaled radially onto the unit p-ball when outside
+    it (``dynamics.torque_from_action``). It is held for the whole control step.
+    Out-of-range values are saturated, not rejected; a NaN component gives zero
+    torque on that axis, so no action can put NaN into the state. An action of
+    the wrong shape raises ``ValueError``.
+
+    **Observation space** — ``Box(float32)`` of length ``27 + 6·max_cones``
+    (51 for the default ``max_cones=4``). Body frame = current body axes.
+
+    =======  ===================================================  ==========  =========
+    Index    Observation                                          Min         Max
+    =======  ===================================================  ==========  =========
+    0-3      error quaternion ``q* ⊗ qf`` (scalar first, scalar   -1 (0)      1
+             >= 0): the rotation still to go, body frame. For a
+             pointing target: the shortest rotation taking the
+             sensor onto the target direction, body frame
+    4-6      body rate ``ω · T`` (clipped, see below)             -1e4        1e4
+    7-9      target body rate ``ωf · T`` (clipped)                -1e4        1e4
+    10-12    target sensor direction, body frame                  -1          1
+    13-15    sensor axis, body frame                              -1          1
+    16-18    inertia ``J / J_max``                                0           1
+    19-21    torque bound ``u_max / max(u_max)``                  0           1
+    22       1 if the target is pointing-only (roll free)         0           1
+    23       ``1/p`` of the torque bound, 0 for per-axis          0           1
+    24-26    rate limit ``r/(1+r)``, ``r = rate_max,i · T``;      0           1
+             1 without a rate limit
+    27+6k    cone slot k: axis, body frame (3)                    -1          1
+    30+6k    cone slot k: half-angle (rad)                        0           π
+    31+6k    cone slot k: current margin, angle(sensor, axis)     -π          π
+             − half-angle (rad); negative inside
+    32+6k    cone slot k: mask, 1 present, 0 absent               0           1
+    =======  ===================================================  ==========  =========
+
+    Absent cone slots are all zero. Every observation lies inside the space.
+    All bounds are finite because Gymnasium's checker warns on infinite ones: the
+    rates are clipped at ±1e4, which no episode from rest approaches (``|ω|·T``
+    grows by at most ``√3·(J_max/J_min)·t/T``, under 90 in 400 steps for the
+    provided distributions), and the rate limit is squashed so that "none" is 1.
+
+    **Reward** — time-optimal: a cost per unit (nondimensional) time, plus terms.
+
+    ======================================  =================================================
+    Term                                    Value per step
+    ======================================  =================================================
+    time                                    ``-control_dt`` (the time elapsed, in units T;
+                                            less on a step cut short by a violation)
+    success                                 ``+success_bonus`` on the step that succeeds
+    violation, ``terminate_on_violation``   ``-violation_penalty`` once, and the episode ends
+    violation, otherwise                    ``-violation_penalty × control_dt × (sub-steps in
+                                            violation / substeps)``: the penalty per unit
+                                            time spent in violation
+    shaping (``shaping`` weight)            ``shaping · (Φ(s') − Φ(s))``,
+                                            ``Φ = −(error angle + ‖ω − ωf‖·T)``, and
+                                            ``Φ = 0`` for a terminal ``s'``
+    ======================================  =================================================
+
+    The shaping term is potential-based with a zero terminal potential, so over an
+    episode it adds ``−Φ(s0)`` (a constant of the start) plus, if truncated, the
+    last potential; it does not change which policy is optimal (undiscounted).
+    ``shaping=0`` gives the pure time-optimal reward.
+
+    **Constraints** — a violation is the sensor inside a cone by more than 1e-9
+    rad, or ``|ω_i| > rate_max,i``. Both are checked after every RK4 sub-step,
+    not only at control instants. With ``terminate_on_violation`` the step stops
+    at the first violating sub-step and the observation is that state.
+
+    **Starting state** — ``reset(seed=..., options={"problem": p})`` poses the
+    given ``SlewProblem`` or dict (validated by ``SlewProblem.from_dict``; more
+    cones than ``max_cones`` raises ``ValueError`` naming ``cones``). Without a
+    problem, a task is drawn with ``self.np_random`` from ``task_distribution``
+    (see ``slew_env.tasks.TaskDistribution``). The body starts at ``q0, ω0``.
+
+    **Episode end**
+
+    - terminated: success — error angle (full target: the angle of
+      ``qf* ⊗ q``; pointing: the angle between sensor and target) below
+      ``att_tol_deg`` and ``‖ω − ωf‖·T < rate_tol`` at a control instant;
+    - terminated: a violation, when ``terminate_on_violation`` is true;
+    - truncated: only by the ``TimeLimit`` wrapper (``max_episode_steps=400``
+      in the registration of ``slew_env/Slew-v0``).
+
+    ``info`` keys: ``is_success``, ``violation`` (any sub-step of this step),
+    ``min_cone_margin`` (smallest margin over this step's sub-steps, rad;
+    ``inf`` without cones), ``attitude_error`` (rad), ``rate_error``
+    (``‖ω − ωf‖·T``), ``time`` (physical, since reset).
+
+    **Arguments**
+
+    ==========================  ================  ==============================================
+    Argument                    Default           Meaning
+    ==========================  ================  ==============================================
+    ``task_distribution``       "full-attitude"   family name, ``TaskDistribution`` or dict
+    ``max_cones``               4                 cone slots in the observation
+    ``control_dt``              0.05              control step, in time units T
+    ``substeps``                4                 RK4 sub-steps per control step
+    ``success_bonus``           10.0              reward on success
+    ``violation_penalty``       10.0              see Reward
+    ``terminate_on_violation``  True              a violation ends the episode
+    ``shaping``                 1.0               weight of the shaping term (0: none)
+    ``att_tol_deg``             1.0               success tolerance on the error angle (deg)
+    ``rate_tol``                0.02              success tolerance on ``‖ω − ωf‖·T``
+    ``render_mode``             None              ``"rgb_array"`` or ``"human"``
+    ==========================  ================  ==============================================
+
+    Rendering draws the sensor's path on the unit sphere with the cones, the
+    start and the target, and the time histories of the error angle, the rates
+    and the torques (``slew_env.rendering``).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+
+    def __init__(self, task_distribution="full-attitude", max_cones: int = 4,
+                 control_dt: float = 0.05, substeps: int = 4, success_bonus: float = 10.0,
+                 violation_penalty: float = 10.0, terminate_on_violation: bool = True,
+                 shaping: float = 1.0, att_tol_deg: float = 1.0, rate_tol: float = 0.02,
+                 render_mode: Optional[str] = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        self.render_mode = render_mode
+        self.max_cones = check_max_cones(max_cones)
+        self.task_distribution = resolve_distribution(task_distribution, self.max_cones)
+        self._dist = self.task_distribution.to_array()
+        self._cfg = make_config(control_dt, substeps, success_bonus, violation_penalty,
+                                terminate_on_violation, shaping, att_tol_deg, rate_tol)
+        self.control_dt = float(control_dt)
+        self.substeps = int(substeps)
+        self.terminate_on_violation = bool(terminate_on_violation)
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        low, high = observation_bounds(self.max_cones)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+
+        self._task = np.zeros(_t.task_length(self.max_cones))
+        self._st = np.zeros(_k.state_length(self.max_cones))
+        self._obs = np.zeros(_k.obs_length(self.max_cones), dtype=np.float32)
+        self._out = np.zeros(_k.OUT_LENGTH)
+        self._act = np.zeros(3)
+        self._problem: Optional[SlewProblem] = None
+        self._has_reset = False
+        self._history = None
+        self._renderer = None
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        problem = None
+        if options:
+            unknown = set(options) - {"problem"}
+            if unknown:
+                raise ValueError(f"options: unknown key(s) {sorted(unknown)}; use {{'problem': ...}}")
+            problem = options.get("problem")
+        if problem is not None:
+            self._problem, self._task[:] = problem_to_task(problem, self.max_cones)
+        else:
+            draw_task(self.np_random, self._dist, self._task)
+            self._problem = None
+        _k.reset_env(self._task, self._st, self._cfg, self._obs, self._out)
+        self._has_reset = True
+        if self.render_mode is not None:
+            self._history = _History()
+            self._history.record(self._task, self._st, self._out)
+            if self.render_mode == "human":
+                self.render()
+        return self._obs.copy(), self._info()
+
+    def step(self, action):
+        if not self._has_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        act = self._act
+        if type(action) is np.ndarray and action.shape == (3,):
+            act[:] = action
+        else:
+            arr = np.asarray(action, dtype=np.float64)
+            if arr.shape != (3,):
+                raise ValueError(f"action: expected shape (3,), got {arr.shape}")
+            act[:] = arr
+        _k.step_env(self._task, self._st, act, self._cfg, self._obs, self._out)
+        reward, terminated, _, success, violation, margin, att, rate_err, time = \
+            self._out[:_k.R_TORQUE].tolist()
+        info = {"is_success": success > 0.5, "violation": violation > 0.5,
+                "min_cone_margin": margin, "attitude_error": att, "rate_error": rate_err,
+                "time": time}
+        if self._history is not None:
+            self._history.record(self._task, self._st, self._out)
+            if self.render_mode == "human":
+                self.render()
+        return self._obs.copy(), reward, terminated > 0.5, False, info
+
+    def _info(self) -> dict:
+        o = self._out
+        return {"is_success": bool(o[_k.R_SUCCESS] > 0.5), "violation": bool(o[_k.R_VIOLATION] > 0.5),
+                "min_cone_margin": float(o[_k.R_MIN_MARGIN]), "attitude_error": float(o[_k.R_ATT_ERR]),
+                "rate_error": float(o[_k.R_RATE_ERR]), "time": float(o[_k.R_TIME])}
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; make the environment with "
+                            'render_mode="rgb_array" or "human"')
+            return None
+        if not self._has_reset:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        from .rendering import SlewRenderer
+        if self._renderer is None:
+            self._renderer = SlewRenderer(fps=self.metadata["render_fps"])
+        frame = self._renderer.draw(self._task, self._history.arrays())
+        if self.render_mode == "human":
+            self._renderer.show(frame)
+            return None
+        return frame
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ introspection
+    @property
+    def problem(self) -> SlewProblem:
+        """The slew of the current episode."""
+        if self._problem is None:
+            if not self._has_reset:
+                raise gym.error.ResetNeeded("no problem posed yet; call reset()")
+            self._problem = SlewProblem.from_task_array(self._task)
+        return self._problem
+
+    @property
+    def state(self) -> np.ndarray:
+        """Copy of the physical state ``[q0, q1, q2, q3, ω1, ω2, ω3]``."""
+        return self._st[_k.S_X:_k.S_X + 7].copy()
+
+    @property
+    def time(self) -> float:
+        """Physical time since reset."""
+        return float(self._st[_k.S_TIME])
+
+    @property
+    def task_array(self) -> np.ndarray:
+        """Copy of the current problem in the flat layout of ``slew_env.core.task``."""
+        return self._task.copy()
+
+
+class _History:
+    """Per-step record for rendering (kept only when a render mode is set)."""
+
+    def __init__(self):
+        self.rows = []
+
+    def record(self, task, st, out):
+        x = st[_k.S_X:_k.S_X + 7]
+        T = task[_t.T_TUNIT]
+        s_i = np.asarray(qrotate(x[:4].copy(), task[_t.T_SENSOR:_t.T_SENSOR + 3].copy()))
+        u_norm = out[_k.R_TORQUE:_k.R_TORQUE + 3] / task[_t.T_UMAX:_t.T_UMAX + 3]
+        self.rows.append(np.concatenate(([st[_k.S_TIME], out[_k.R_ATT_ERR]], s_i, x[4:7] * T, u_norm)))
+
+    def arrays(self) -> dict:
+        a = np.array(self.rows)
+        return {"time": a[:, 0], "attitude_error": a[:, 1], "sensor": a[:, 2:5],
+                "rates": a[:, 5:8], "torque": a[:, 8:11]}

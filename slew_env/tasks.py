@@ -1,0 +1,288 @@
+"""Task distributions: the random slews the environment draws on reset.
+
+The dataset generator and the RL scripts reuse the same named families, so a
+family name fixes the distribution everywhere::
+
+    from slew_env.tasks import TaskDistribution
+    dist = TaskDistribution.family("pointing-cones")          # or "full-attitude"
+    problem = dist.sample(np.random.default_rng(0))            # a validated SlewProblem
+    custom = TaskDistribution.family("pointing-cones", n_cones=(2, 4))
+
+Sampling runs in compiled code (``slew_env.core.sampling``) on a block of
+uniforms drawn from the caller's generator; see that module for the exact
+order in which uniforms are used.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+
+from .core import sampling as _s
+from .core import task as _t
+from .problem import SlewProblem
+
+# Uniforms per sampling attempt. A failed attempt (cone rejections exhausted the
+# block) is retried from scratch on the next block of the same generator.
+BLOCK = 256
+# Blocks tried before the distribution is declared unable to produce a task.
+MAX_BLOCKS = 64
+
+_INERTIA_MODES = {"fixed": _s.INERTIA_FIXED, "symmetric": _s.INERTIA_SYMMETRIC,
+                  "asymmetric": _s.INERTIA_ASYMMETRIC}
+
+
+def _pair(name, value, lo_bound=None, hi_bound=None, integer=False):
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a (low, high) pair, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise ValueError(f"{name}: need finite low <= high, got ({lo:g}, {hi:g})")
+    if lo_bound is not None and lo < lo_bound or hi_bound is not None and hi > hi_bound:
+        raise ValueError(f"{name}: must lie in [{lo_bound}, {hi_bound}], got ({lo:g}, {hi:g})")
+    if integer:
+        if lo != int(lo) or hi != int(hi):
+            raise ValueError(f"{name}: expected whole numbers, got ({lo:g}, {hi:g})")
+        return int(lo), int(hi)
+    return lo, hi
+
+
+def _positive3(name, value):
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
+        raise ValueError(f"{name}: expected one or three positive finite numbers, got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+def _probability(name, value):
+    v = float(value)
+    if not 0.0 <= v <= 1.0:
+        raise ValueError(f"{name}: must lie in [0, 1], got {v:g}")
+    return v
+
+
+@dataclass(frozen=True)
+class TaskDistribution:
+    """Distribution of random rest-to-rest slews.
+
+    ======================  =====================  ==============================================
+    Field                   Default                Meaning
+    ======================  =====================  ==============================================
+    ``angle_deg``           ``(10, 180)``          slew angle range θ (deg): eigenaxis angle of a
+                                                   full target, or the angle between the start
+                                                   sensor direction and a pointing target
+    ``pointing_prob``       ``0.0``                probability of a pointing-only target (roll
+                                                   about the sensor free); else a full attitude
+    ``inertia_mode``        ``"asymmetric"``       ``"fixed"``: ``inertia``; ``"symmetric"``:
+                                                   ``(1, 1, 1)``; ``"asymmetric"``: each ``J_i``
+                                                   uniform in ``inertia_ratio``
+    ``inertia``             ``(1, 1, 1)``          inertia of the fixed mode
+    ``inertia_ratio``       ``(0.4, 1.0)``         range of ``J_i`` in the asymmetric mode
+    ``torque_max``          ``(1, 1, 1)``          torque bound (one number or three)
+    ``torque_norm``         ``"inf"``              ``"inf"`` per-axis bound, or ``p > 1``
+    ``sensor_axis``         ``(1, 0, 0)``          body sensor axis
+    ``n_cones``             ``(0, 0)``             number of keep-out cones, uniform integer
+    ``cone_half_angle_deg`` ``(10, 30)``           cone half-angle range (deg)
+    ``cone_clearance_deg``  ``3.0``                start and target sensor directions clear
+                                                   every cone by at least this (deg)
+    ``path_cone_prob``      ``0.5``                probability that a cone after the first lies
+                                                   across the short start→target arc (the first
+                                                   one always does); others have random axes
+    ``path_offset``         ``0.5``                sideways offset of a path cone's axis from the
+                                                   arc, as a fraction of its half-angle (< 1, so
+                                                   the arc goes through the cone)
+    ``max_cone_tries``      ``20``                 rejections of one cone before the whole task
+                                                   is redrawn
+    ``name``                ``"custom"``           label; the families set their own name
+    ======================  =====================  ==============================================
+
+    Start attitudes are uniform on SO(3); start and target rates are zero. The
+    start attitude, the slew axis, the pointing direction and cone axes are
+    uniform random, so the distribution is rotation invariant.
+
+    Families (``TaskDistribution.family(name, **overrides)``):
+
+    - ``"full-attitude"``: full attitude targets, θ in [10°, 180°], no cones,
+      asymmetric inertia with ``J_i`` in [0.4, 1], unit per-axis torque.
+    - ``"pointing-cones"``: pointing-only targets, θ in [40°, 180°], 1 to 3 cones
+      with half-angles in [10°, 30°] (the first across the short path), the same
+      bodies and torque bound.
+
+    Only start and target are guaranteed clear of the cones; cones may overlap,
+    and no check is made that some path between them stays clear.
+    """
+
+    angle_deg: tuple = (10.0, 180.0)
+    pointing_prob: float = 0.0
+    inertia_mode: str = "asymmetric"
+    inertia: tuple = (1.0, 1.0, 1.0)
+    inertia_ratio: tuple = (0.4, 1.0)
+    torque_max: Union[float, tuple] = (1.0, 1.0, 1.0)
+    torque_norm: Union[str, float] = "inf"
+    sensor_axis: tuple = (1.0, 0.0, 0.0)
+    n_cones: tuple = (0, 0)
+    cone_half_angle_deg: tuple = (10.0, 30.0)
+    cone_clearance_deg: float = 3.0
+    path_cone_prob: float = 0.5
+    path_offset: float = 0.5
+    max_cone_tries: int = 20
+    name: str = "custom"
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_("angle_deg", _pair("angle_deg", self.angle_deg, 0.0, 180.0))
+        set_("pointing_prob", _probability("pointing_prob", self.pointing_prob))
+        if self.inertia_mode not in _INERTIA_MODES:
+            raise ValueError(f"inertia_mode: expected one of {list(_INERTIA_MODES)}, "
+                             f"got {self.inertia_mode!r}")
+        set_("inertia", _positive3("inertia", self.inertia))
+        ratio = _pair("inertia_ratio", self.inertia_ratio)
+        if ratio[0] <= 0.0:
+            raise ValueError(f"inertia_ratio: must be positive, got {ratio}")
+        set_("inertia_ratio", ratio)
+        set_("torque_max", _positive3("torque_max", self.torque_max))
+        set_("torque_norm", self._check_norm(self.torque_norm))
+        axis = np.asarray(self.sensor_axis, dtype=float)
+        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-12:
+            raise ValueError(f"sensor_axis: expected a non-zero 3-vector, got {self.sensor_axis!r}")
+        set_("sensor_axis", tuple(float(v) for v in axis / np.linalg.norm(axis)))
+        set_("n_cones", _pair("n_cones", self.n_cones, 0, None, integer=True))
+        set_("cone_half_angle_deg", _pair("cone_half_angle_deg", self.cone_half_angle_deg, 0.0, 180.0))
+        if self.cone_half_angle_deg[0] <= 0.0:
+            raise ValueError(f"cone_half_angle_deg: must be positive, got {self.cone_half_angle_deg}")
+        clear = float(self.cone_clearance_deg)
+        if not 0.0 <= clear < 90.0:
+            raise ValueError(f"cone_clearance_deg: must lie in [0, 90), got {clear:g}")
+        set_("cone_clearance_deg", clear)
+        set_("path_cone_prob", _probability("path_cone_prob", self.path_cone_prob))
+        offset = float(self.path_offset)
+        if not 0.0 <= offset < 1.0:
+            raise ValueError(f"path_offset: must lie in [0, 1) so the arc crosses the cone, got {offset:g}")
+        set_("path_offset", offset)
+        if int(self.max_cone_tries) < 1:
+            raise ValueError(f"max_cone_tries: must be >= 1, got {self.max_cone_tries}")
+        set_("max_cone_tries", int(self.max_cone_tries))
+        if self.n_cones[1] > 0:
+            # The first cone sits on the start→target arc with both ends clear.
+            need = 2.0 * (self.cone_half_angle_deg[0] + clear)
+            if self.angle_deg[1] <= need:
+                raise ValueError(
+                    f"cone_half_angle_deg: a cone of {self.cone_half_angle_deg[0]:g}° with "
+                    f"{clear:g}° clearance needs slews above {need:g}°, but angle_deg allows at most "
+                    f"{self.angle_deg[1]:g}°")
+
+    @staticmethod
+    def _check_norm(value):
+        if isinstance(value, str) and value.strip().lower() in ("inf", "infinity", "per-axis"):
+            return "inf"
+        try:
+            p = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"torque_norm: expected 'inf' or a number p > 1, got {value!r}") from None
+        if math.isinf(p) and p > 0:
+            return "inf"
+        if not p > 1.0:
+            raise ValueError(f"torque_norm: p must be > 1, got {value!r}")
+        return p
+
+    # ------------------------------------------------------------------ families
+    @classmethod
+    def family(cls, name: str, **overrides) -> "TaskDistribution":
+        """A named family, optionally with some fields changed."""
+        if name not in FAMILIES:
+            raise ValueError(f"task_distribution: unknown family {name!r}; known: {sorted(FAMILIES)}")
+        return dataclasses.replace(FAMILIES[name], **overrides)
+
+    @classmethod
+    def resolve(cls, spec) -> "TaskDistribution":
+        """A family name, a ``TaskDistribution`` or a dict of fields (optionally with ``family``)."""
+        if isinstance(spec, TaskDistribution):
+            return spec
+        if isinstance(spec, str):
+            return cls.family(spec)
+        if isinstance(spec, dict):
+            d = dict(spec)
+            base = d.pop("family", None)
+            return cls.family(base, **d) if base is not None else cls(**d)
+        raise ValueError(f"task_distribution: expected a family name, a TaskDistribution or a dict, "
+                         f"got {type(spec).__name__}")
+
+    # ------------------------------------------------------------------ sampling
+    @property
+    def max_cones(self) -> int:
+        return self.n_cones[1]
+
+    def to_array(self) -> np.ndarray:
+        """The parameter array read by ``slew_env.core.sampling.sample_task``."""
+        d = np.zeros(_s.DIST_LENGTH)
+        d[_s.D_ANGLE_MIN] = math.radians(self.angle_deg[0])
+        d[_s.D_ANGLE_MAX] = math.radians(self.angle_deg[1])
+        d[_s.D_POINTING_PROB] = self.pointing_prob
+        d[_s.D_INERTIA_MODE] = _INERTIA_MODES[self.inertia_mode]
+        d[_s.D_INERTIA:_s.D_INERTIA + 3] = self.inertia
+        d[_s.D_RATIO_MIN], d[_s.D_RATIO_MAX] = self.inertia_ratio
+        d[_s.D_UMAX:_s.D_UMAX + 3] = self.torque_max
+        d[_s.D_PNORM] = 0.0 if self.torque_norm == "inf" else self.torque_norm
+        d[_s.D_SENSOR:_s.D_SENSOR + 3] = self.sensor_axis
+        d[_s.D_NCONES_MIN], d[_s.D_NCONES_MAX] = self.n_cones
+        d[_s.D_HALF_MIN] = math.radians(self.cone_half_angle_deg[0])
+        d[_s.D_HALF_MAX] = math.radians(self.cone_half_angle_deg[1])
+        d[_s.D_CLEARANCE] = math.radians(self.cone_clearance_deg)
+        d[_s.D_PATH_PROB] = self.path_cone_prob
+        d[_s.D_PATH_OFFSET] = self.path_offset
+        d[_s.D_MAX_TRIES] = self.max_cone_tries
+        return d
+
+    def sample_task_array(self, rng, max_cones: Optional[int] = None, out=None) -> np.ndarray:
+        """One random task in the flat layout of ``slew_env.core.task`` (``max_cones`` slots)."""
+        if max_cones is None:
+            max_cones = self.max_cones
+        if out is None:
+            out = np.zeros(_t.task_length(max_cones))
+        draw_task(_rng(rng), self.to_array(), out)
+        return out
+
+    def sample(self, rng=None) -> SlewProblem:
+        """One random problem, validated as a ``SlewProblem``."""
+        return SlewProblem.from_task_array(self.sample_task_array(rng))
+
+
+def _rng(rng):
+    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+
+
+def draw_task(rng: np.random.Generator, dist: np.ndarray, task: np.ndarray,
+              block: int = BLOCK, max_blocks: int = MAX_BLOCKS) -> None:
+    """Fill ``task`` from ``dist``, drawing blocks of ``block`` uniforms from ``rng``.
+
+    Each attempt takes a fresh block; the vector environment consumes the same
+    blocks in the same order, so both draw identical tasks from equal generators.
+    """
+    for _ in range(max_blocks):
+        used = _s.sample_task(dist, rng.random(block), task)
+        if used >= 0:
+            return
+        if used == _s.TOO_MANY_CONES:
+            raise ValueError(f"max_cones: the distribution allows {int(dist[_s.D_NCONES_MAX])} cones "
+                             f"but the task has {_t.max_cones_of(task.shape[0])} slots")
+    raise RuntimeError(unplaceable_message(max_blocks, block))
+
+
+def unplaceable_message(max_blocks, block):
+    return (f"task distribution: no valid task in {max_blocks} blocks of {block} uniforms; the cones "
+            "cannot be placed clear of start and target (reduce cone_half_angle_deg or "
+            "cone_clearance_deg, or raise angle_deg)")
+
+
+FAMILIES = {
+    "full-attitude": TaskDistribution(name="full-attitude"),
+    "pointing-cones": TaskDistribution(
+        name="pointing-cones", angle_deg=(40.0, 180.0), pointing_prob=1.0, n_cones=(1, 3),
+        cone_half_angle_deg=(10.0, 30.0)),
+}
