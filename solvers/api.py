@@ -34,8 +34,9 @@ from .core import attitude_flow as af
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solve_structure
 from .shooting import newton_shoot
+from .eigenaxis import eigenaxis_slew
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
-                       STATUS_VERIFICATION_FAILED, SlewSolution)
+                       STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
 from .verify import verify
 
@@ -88,13 +89,13 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
         for g in guess.all():
             z, T = g.to_nondim(bvp)
             st = _structure_from_guess(g, bvp)
-            if fresh(z, st):
+            if count < max_candidates and fresh(z, st):
                 yield z, T, st, g.source
                 count += 1
     rng = np.random.default_rng(seed)
     g = eigenaxis_guess(bvp)
     z0, T0 = g.to_nondim(bvp)
-    if fresh(z0, None):
+    if count < max_candidates and fresh(z0, None):
         yield z0, T0, None, g.source
         count += 1
     if per_axis:
@@ -172,8 +173,13 @@ def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
 def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     """Time-optimal slew of ``problem`` (``SlewProblem`` or dict).
 
-    Options: ``segments`` (multiple shooting, default 4), ``max_candidates`` (default 24),
-    ``min_candidates`` (tried before stopping early, default 8), ``enough`` (converged
+    A verified extremal slower than the eigenaxis slew of the same problem (the
+    baseline, ``SlewSolution.baseline_tf``) is a local optimum: it is returned with
+    ``success=False`` and status 4, never as the answer.
+
+    Options: ``segments`` (multiple shooting, default 4), ``max_candidates`` (default 24
+    per-axis, 8 p-norm), ``min_candidates`` (tried before stopping early, default 8
+    per-axis, 3 p-norm), ``enough`` (converged
     candidates before stopping early, default 2), ``seed`` (for
     the perturbed candidates, default 0), ``time_budget`` (s, default 60), ``tols``
     (verification tolerances, see ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400
@@ -195,11 +201,14 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     if prob.qf is None:
         raise ValueError("sensor_target: pointing-only targets are not supported by the indirect "
                          "solvers yet; give a full attitude qf")
+    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
+        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
     segments = int(options.get("segments", 4 if method == "multiple-shooting" else 1))
     if segments < 1:
         raise ValueError(f"segments: must be a positive integer, got {segments}")
-    max_candidates = int(options.get("max_candidates", 24))
-    min_candidates = int(options.get("min_candidates", 8))
+    per_axis = math.isinf(prob.torque_norm)
+    max_candidates = int(options.get("max_candidates", 24 if per_axis else 8))
+    min_candidates = int(options.get("min_candidates", 8 if per_axis else 3))
     enough = int(options.get("enough", 2))
     seed = options.get("seed", 0)
     budget = float(options.get("time_budget", 60.0))
@@ -212,7 +221,11 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     if "atol" in options:
         kw["atol"] = float(options["atol"])
     bvp = AttitudeBVP(prob, **kw)
-    per_axis = math.isinf(prob.torque_norm)
+    # the eigenaxis slew is what spacecraft fly today: an extremal slower than it is a
+    # local optimum, never the answer (rest-to-rest problems only)
+    baseline = math.nan
+    if prob.is_rest_to_rest:
+        baseline = eigenaxis_slew(prob, n_grid=1000).tf / bvp.tau
     deadline = t_start + budget
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
 
@@ -253,10 +266,21 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
         found.append((a.T, a, tr, checks, src))
         if len(found) >= enough and tried >= min_candidates:
             Ts = sorted(f[0] for f in found)
-            if len(Ts) >= 2 and abs(Ts[1] - Ts[0]) <= 1e-7 * Ts[0]:
+            beats_baseline = not (Ts[0] > baseline * (1 + 1e-9))
+            if len(Ts) >= 2 and abs(Ts[1] - Ts[0]) <= 1e-7 * Ts[0] and beats_baseline:
                 break
     wall = time.perf_counter() - t_start
-    common = dict(nit=nit, nfev=nfev, method=method_used, n_candidates=tried, problem=prob)
+    common = dict(nit=nit, nfev=nfev, method=method_used, n_candidates=tried, problem=prob,
+                  baseline_tf=baseline * bvp.tau)
+    if found and min(f[0] for f in found) > baseline * (1 + 1e-9):
+        best_T = min(f[0] for f in found)
+        T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
+        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
+        return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
+                            f"{STATUS_MESSAGES[STATUS_WORSE_THAN_BASELINE]} Best extremal {T * bvp.tau:.9g} vs "
+                            f"eigenaxis slew {baseline * bvp.tau:.9g}; tried {tried} candidate(s).",
+                            wall_time=time.perf_counter() - t_start, candidates_tf=cands, **common, **fields)
     if found:
         best_T = min(f[0] for f in found)
         # among extremals with the same final time, report the first one found

@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq, minimize_scalar
 
 from slew_env import SlewProblem
 from .guesses import eigenaxis_axis_angle
@@ -31,7 +32,7 @@ class EigenaxisSlew:
     theta: np.ndarray       # samples of the rotation angle
     t: np.ndarray           # time at each sample
     rate: np.ndarray        # θ̇ at each sample
-    u: np.ndarray           # torque at each sample (n, 3)
+    u: np.ndarray           # torque on each grid interval (worse end), last row the final torque
 
 
 def _accel_interval(a, c, U, p, s):
@@ -56,28 +57,13 @@ def _accel_interval(a, c, U, p, s):
         m = float(np.max(v))
         return m * float(np.sum((v / m) ** p)) ** (1.0 / p) if m > 0 else 0.0
     # {x : g(x) ≤ 1} is an interval inside [lo, hi] (g convex): minimiser, then both edges
-    a_b, b_b = lo, hi
-    for _ in range(100):
-        m1 = a_b + (b_b - a_b) / 3.0
-        m2 = b_b - (b_b - a_b) / 3.0
-        if g(m1) < g(m2):
-            b_b = m2
-        else:
-            a_b = m1
-    xm = 0.5 * (a_b + b_b)
+    res = minimize_scalar(g, bounds=(lo, hi), method="bounded", options={"xatol": 1e-13 * max(1.0, hi - lo)})
+    xm = float(res.x)
     if g(xm) > 1.0:
         return None
-
-    def edge(outer):
-        inner = xm
-        for _ in range(100):
-            mid = 0.5 * (inner + outer)
-            if g(mid) <= 1.0:
-                inner = mid
-            else:
-                outer = mid
-        return inner
-    return edge(lo), edge(hi)
+    left = lo if g(lo) <= 1.0 else brentq(lambda x: g(x) - 1.0, lo, xm, xtol=1e-15, rtol=1e-14)
+    right = hi if g(hi) <= 1.0 else brentq(lambda x: g(x) - 1.0, xm, hi, xtol=1e-15, rtol=1e-14)
+    return left, right
 
 
 def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
@@ -119,32 +105,47 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     theta = np.linspace(0.0, th, n_grid + 1)
     dth = theta[1] - theta[0]
 
+    fixed = _accel_interval(a, c, U, p, 0.0) if not np.any(c) else None
+
+    def interval(s):
+        # without a gyroscopic term the feasible accelerations do not depend on the rate
+        return fixed if fixed is not None else _accel_interval(a, c, U, p, min(s, s_max))
+
     def amax(s):
-        iv = _accel_interval(a, c, U, p, min(s, s_max))
+        iv = interval(s)
         return iv[1] if iv is not None else 0.0
 
     def amin(s):
-        iv = _accel_interval(a, c, U, p, min(s, s_max))
+        iv = interval(s)
         return iv[0] if iv is not None else 0.0
 
     fwd = np.zeros_like(theta)
     bwd = np.zeros_like(theta)
-    for k in range(n_grid):   # ds/dθ = 2 θ̈, midpoint rule
+    # ds/dθ = 2 θ̈ with θ̈ constant on each grid interval and feasible at BOTH of its
+    # ends, so the sampled torques never exceed the bound (conservative by O(dθ))
+    for k in range(n_grid):
         s = fwd[k]
-        sm = min(s + dth * amax(s), s_max)
-        fwd[k + 1] = min(s + 2.0 * dth * amax(sm), s_max)
+        acc = amax(s)
+        for _ in range(3):
+            acc = min(acc, amax(min(s + 2.0 * dth * acc, s_max)))
+        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
     for k in range(n_grid, 0, -1):
         s = bwd[k]
-        sm = min(s - dth * amin(s), s_max)
-        bwd[k - 1] = min(s - 2.0 * dth * amin(sm), s_max)
+        dec = amin(s)
+        for _ in range(3):
+            dec = max(dec, amin(min(s - 2.0 * dth * dec, s_max)))
+        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
     rate = np.sqrt(s_prof)
     # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)
     denom = rate[:-1] + rate[1:]
     dt = np.where(denom > 0, 2.0 * dth / np.where(denom > 0, denom, 1.0), 0.0)
     t = np.concatenate([[0.0], np.cumsum(dt)])
-    acc = np.zeros_like(theta)
-    acc[:-1] = (s_prof[1:] - s_prof[:-1]) / (2.0 * dth)
-    acc[-1] = acc[-2]
-    u = acc[:, None] * a[None, :] + s_prof[:, None] * c[None, :]
+    acc = (s_prof[1:] - s_prof[:-1]) / (2.0 * dth)      # per interval
+    # torque at both ends of every interval (the larger in bound units is what matters)
+    u_start = acc[:, None] * a[None, :] + s_prof[:-1, None] * c[None, :]
+    u_end = acc[:, None] * a[None, :] + s_prof[1:, None] * c[None, :]
+    u = np.vstack([u_start, u_end[-1:]])
+    worse = np.max(np.abs(u_end) / U, axis=1) > np.max(np.abs(u_start) / U, axis=1)
+    u[:-1][worse] = u_end[worse]
     return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u)

@@ -13,12 +13,14 @@ STATUS_SUCCESS = 0
 STATUS_NOT_CONVERGED = 1
 STATUS_VERIFICATION_FAILED = 2
 STATUS_BUDGET_EXHAUSTED = 3
+STATUS_WORSE_THAN_BASELINE = 4
 
 STATUS_MESSAGES = {
     STATUS_SUCCESS: "Verified extremal found.",
     STATUS_NOT_CONVERGED: "No candidate converged.",
     STATUS_VERIFICATION_FAILED: "A candidate converged but failed its own verification.",
     STATUS_BUDGET_EXHAUSTED: "Time budget exhausted before any candidate converged.",
+    STATUS_WORSE_THAN_BASELINE: "Only extremals slower than the eigenaxis slew were found (local optima).",
 }
 
 
@@ -34,7 +36,8 @@ class SlewSolution:
     dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``;
     ``method``, ``route`` (how the answer was reached), ``guess`` (which guess won);
     ``n_candidates`` tried and ``candidates_tf`` (final times of all converged
-    candidates, the local optima seen); ``verification`` (dict of checks).
+    candidates, the local optima seen); ``baseline_tf`` (the eigenaxis slew's time, for
+    rest-to-rest problems); ``verification`` (dict of checks).
     """
     success: bool
     status: int
@@ -56,6 +59,7 @@ class SlewSolution:
     guess: str = ""
     n_candidates: int = 0
     candidates_tf: List[float] = field(default_factory=list)
+    baseline_tf: float = math.nan
     verification: dict = field(default_factory=dict)
     problem: Any = None
     _control: Optional[Callable] = None
@@ -102,7 +106,8 @@ class SlewSolution:
             "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
             "wall_time_s": self.wall_time, "method": self.method, "route": self.route,
             "guess": self.guess, "n_candidates": self.n_candidates,
-            "candidates_tf": self.candidates_tf, "verification": self.verification,
+            "candidates_tf": self.candidates_tf, "baseline_tf": self.baseline_tf,
+            "verification": self.verification,
         }
         if self.problem is not None:
             d["problem"] = self.problem.to_dict()

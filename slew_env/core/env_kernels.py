@@ -22,7 +22,8 @@ import numpy as np
 from numba import njit, prange
 
 from . import task as _t
-from .dynamics import torque_from_action
+# one allocation-free RK4 step shared with everything else that steps the body
+from .dynamics import rk4_step_inplace as rk4_substep, torque_from_action
 from .sampling import sample_task
 
 # --- st: per-copy state ------------------------------------------------------------
@@ -115,41 +116,6 @@ def _angle(a0, a1, a2, b0, b1, b2):
     c1 = a2 * b0 - a0 * b2
     c2 = a0 * b1 - a1 * b0
     return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
-
-
-@njit(cache=True)
-def _rhs(q0, q1, q2, q3, w0, w1, w2, u0, u1, u2, J0, J1, J2):
-    """``dynamics.state_rhs`` on scalars, same expressions."""
-    return (0.5 * (-q1 * w0 - q2 * w1 - q3 * w2),
-            0.5 * (q0 * w0 + q2 * w2 - q3 * w1),
-            0.5 * (q0 * w1 - q1 * w2 + q3 * w0),
-            0.5 * (q0 * w2 + q1 * w1 - q2 * w0),
-            (u0 - (J2 - J1) * w1 * w2) / J0,
-            (u1 - (J0 - J2) * w2 * w0) / J1,
-            (u2 - (J1 - J0) * w0 * w1) / J2)
-
-
-@njit(cache=True)
-def rk4_substep(x, u0, u1, u2, J0, J1, J2, h):
-    """One RK4 step of ``x[0:7]`` in place, then the quaternion renormalised.
-
-    Same arithmetic as ``dynamics.rk4_step`` followed by the renormalisation of
-    ``dynamics.propagate``.
-    """
-    a = 0.5 * h
-    k1 = _rhs(x[0], x[1], x[2], x[3], x[4], x[5], x[6], u0, u1, u2, J0, J1, J2)
-    k2 = _rhs(x[0] + a * k1[0], x[1] + a * k1[1], x[2] + a * k1[2], x[3] + a * k1[3],
-              x[4] + a * k1[4], x[5] + a * k1[5], x[6] + a * k1[6], u0, u1, u2, J0, J1, J2)
-    k3 = _rhs(x[0] + a * k2[0], x[1] + a * k2[1], x[2] + a * k2[2], x[3] + a * k2[3],
-              x[4] + a * k2[4], x[5] + a * k2[5], x[6] + a * k2[6], u0, u1, u2, J0, J1, J2)
-    k4 = _rhs(x[0] + h * k3[0], x[1] + h * k3[1], x[2] + h * k3[2], x[3] + h * k3[3],
-              x[4] + h * k3[4], x[5] + h * k3[5], x[6] + h * k3[6], u0, u1, u2, J0, J1, J2)
-    b = h / 6.0
-    for i in range(7):
-        x[i] = x[i] + b * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    n = np.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2 + x[3] ** 2)
-    for i in range(4):
-        x[i] = x[i] / n
 
 
 # --- observation --------------------------------------------------------------------------------

@@ -1,0 +1,143 @@
+"""Plots of a ``SlewSolution`` (matplotlib).
+
+Importing ``solvers`` never imports matplotlib: this module is imported on demand and
+imports matplotlib inside its functions. When a ``path`` is given the figure is built on
+a bare Agg canvas (no pyplot, no GUI backend, nothing left open in pyplot's registry);
+without a path the figure comes from ``pyplot.figure`` so that ``plt.show()`` works.
+
+Panels, all against time in the problem's units:
+
+1. attitude: the quaternion components ``q0..q3`` (scalar first);
+2. body rates ``ω``;
+3. torques ``u``, with the switch instants of each axis as vertical lines;
+4. switching functions ``S_i = (J⁻¹ λω)_i`` with the zero line (per-axis bound:
+   ``u_i = -u_max,i sign S_i``, so every crossing is a switch);
+5. the Hamiltonian ``H = λqᵀ q̇ + λωᵀ ω̇`` evaluated from the dense samples with the
+   environment's dynamics (``slew_env.core.dynamics.state_rhs``). In the reporting scale
+   of ``SlewSolution`` (``λ0 = 1`` dropped) it is ``-1`` and constant along an extremal.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+_AXIS_COLORS = ("tab:blue", "tab:orange", "tab:green")
+_QUAT_COLORS = ("k", "tab:blue", "tab:orange", "tab:green")
+PANEL_TITLES = ("attitude", "body rates", "torques", "switching functions", "Hamiltonian")
+
+
+def _require_trajectory(sol):
+    t = np.asarray(sol.t, dtype=float)
+    if t.ndim != 1 or t.shape[0] < 2:
+        raise ValueError(f"plot: this solution has no trajectory to plot "
+                         f"(success={sol.success}, status={sol.status}: {sol.message})")
+    if sol.problem is None:
+        raise ValueError("plot: the solution carries no problem (the inertia is needed)")
+    return t
+
+
+def hamiltonian_along(sol) -> np.ndarray:
+    """``H(t_k) = λq(t_k)ᵀ q̇(t_k) + λω(t_k)ᵀ ω̇(t_k)`` at the dense samples of ``sol``.
+
+    ``q̇, ω̇`` come from ``slew_env.core.dynamics.state_rhs`` with the sampled torque
+    ``sol.u`` and the problem's inertia (problem units). For a verified extremal this is
+    ``-1`` at every sample (the reporting scale of ``SlewSolution``).
+    """
+    from slew_env.core.dynamics import state_rhs
+
+    _require_trajectory(sol)
+    J = np.ascontiguousarray(sol.problem.inertia, dtype=float)
+    q = np.asarray(sol.q, dtype=float)
+    w = np.asarray(sol.omega, dtype=float)
+    u = np.asarray(sol.u, dtype=float)
+    lam = np.asarray(sol.costate, dtype=float)
+    H = np.empty(q.shape[0])
+    for k in range(q.shape[0]):
+        x = np.concatenate([q[k], w[k]])
+        H[k] = float(lam[k] @ state_rhs(x, np.ascontiguousarray(u[k]), J))
+    return H
+
+
+def switching_functions(sol) -> np.ndarray:
+    """``S(t_k) = J⁻¹ λω(t_k)`` (n, 3), in problem units."""
+    _require_trajectory(sol)
+    return np.asarray(sol.costate, dtype=float)[:, 4:7] / np.asarray(sol.problem.inertia, dtype=float)
+
+
+def _new_figure(path, figsize):
+    if path is None:
+        import matplotlib.pyplot as plt
+        return plt.figure(figsize=figsize)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def plot_solution(sol, path=None, dpi=120):
+    """Five-panel figure of ``sol`` (see module docstring); saved as PNG to ``path`` if given.
+
+    Returns the ``matplotlib.figure.Figure``. Raises ``ValueError`` when the solution has
+    no trajectory (a failed solve that never converged).
+    """
+    t = _require_trajectory(sol)
+    S = switching_functions(sol)
+    H = hamiltonian_along(sol)
+    q = np.asarray(sol.q, dtype=float)
+    w = np.asarray(sol.omega, dtype=float)
+    u = np.asarray(sol.u, dtype=float)
+    sw = [np.asarray(s, dtype=float) for s in sol.switch_times]
+
+    fig = _new_figure(path, (9.0, 13.0))
+    axs = fig.subplots(5, 1, sharex=True)
+    ax_q, ax_w, ax_u, ax_s, ax_h = axs
+
+    for i in range(4):
+        ax_q.plot(t, q[:, i], color=_QUAT_COLORS[i], label=f"q{i}")
+    ax_q.set_ylabel("q")
+
+    for i in range(3):
+        ax_w.plot(t, w[:, i], color=_AXIS_COLORS[i], label=f"ω{AXES[i]}")
+    ax_w.axhline(0.0, color="0.6", lw=0.6)
+    ax_w.set_ylabel("ω")
+
+    for i in range(3):
+        ax_u.plot(t, u[:, i], color=_AXIS_COLORS[i], label=f"u{AXES[i]}", drawstyle="default")
+    n_sw = 0
+    for i in range(3):
+        for ts in sw[i]:
+            ax_u.axvline(ts, color=_AXIS_COLORS[i], ls="--", lw=0.9, alpha=0.8,
+                         label=f"switch {AXES[i]}" if ts == sw[i][0] else None)
+            n_sw += 1
+    ax_u.set_ylabel("u")
+
+    for i in range(3):
+        ax_s.plot(t, S[:, i], color=_AXIS_COLORS[i], label=f"S{AXES[i]}")
+    ax_s.axhline(0.0, color="k", lw=0.8)
+    ax_s.set_ylabel("S = J⁻¹λω")
+
+    ax_h.plot(t, H, color="tab:red", label="H")
+    ax_h.axhline(-1.0, color="k", ls=":", lw=0.8, label="-1")
+    lo, hi = min(float(np.min(H)), -1.0), max(float(np.max(H)), -1.0)
+    pad = max(0.25, 0.1 * (hi - lo))
+    ax_h.set_ylim(lo - pad, hi + pad)
+    ax_h.ticklabel_format(axis="y", useOffset=False)
+    dev = float(np.max(np.abs(H + 1.0)))
+    ax_h.text(0.01, 0.92, f"max |H + 1| = {dev:.2e}", transform=ax_h.transAxes, va="top", fontsize=9)
+    ax_h.set_ylabel("H")
+    ax_h.set_xlabel("t (problem time units)")
+
+    titles = (PANEL_TITLES[0] + " (quaternion, scalar first)", PANEL_TITLES[1],
+              f"{PANEL_TITLES[2]} ({n_sw} switches)", f"{PANEL_TITLES[3]} S_i = (J⁻¹λω)_i",
+              f"{PANEL_TITLES[4]} λqᵀq̇ + λωᵀω̇ (≈ -1 along an extremal)")
+    for ax, title in zip(axs, titles):
+        ax.set_title(title, fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8, ncol=4)
+        ax.set_xlim(float(t[0]), float(t[-1]))
+    fig.suptitle(f"tf = {sol.tf:.10g}   method = {sol.method or '?'}   success = {sol.success}", fontsize=12)
+    fig.tight_layout(rect=(0, 0, 1, 0.98))
+    if path is not None:
+        fig.savefig(path, dpi=dpi, format="png")
+    return fig

@@ -1,0 +1,63 @@
+"""The eigenaxis baseline planner against closed forms and its own constraints."""
+import math
+
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+from slew_env.core import qfrom_axis_angle
+from solvers import eigenaxis_slew
+
+
+def _prob(J, axis, angle, **kw):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return SlewProblem(J, qf=qfrom_axis_angle(axis, angle), **kw)
+
+
+def test_symmetric_two_norm_closed_form():
+    e = eigenaxis_slew(_prob([2, 2, 2], [1, 2, 3], 2.0, torque_max=0.5, torque_norm=2))
+    assert e.tf == pytest.approx(2 * math.sqrt(2.0 * 2 / 0.5), rel=1e-9)
+
+
+def test_symmetric_per_axis_uses_the_cube_corner_of_the_bound():
+    n = np.array([1.0, 2.0, 3.0]) / math.sqrt(14)
+    e = eigenaxis_slew(_prob([1, 1, 1], n, 1.5))
+    acc = 1.0 / np.max(np.abs(n))
+    assert e.tf == pytest.approx(2 * math.sqrt(1.5 / acc), rel=1e-9)
+
+
+def test_principal_axis_of_asymmetric_body_has_no_gyroscopic_torque():
+    # R5: 150° about body x of diag(5621, 4547, 2364) with 50 N·m
+    e = eigenaxis_slew(SlewProblem([5621, 4547, 2364], torque_max=50,
+                                   qf=[math.cos(math.radians(75)), math.sin(math.radians(75)), 0, 0]))
+    assert e.tf == pytest.approx(2 * math.sqrt(math.radians(150) * 5621 / 50), rel=1e-9)
+
+
+def test_asymmetric_off_axis_respects_bounds_including_gyroscopic_torque():
+    prob = _prob([1.0, 0.6, 0.3], [1, 1, 1], 2.5, torque_max=[1.0, 0.8, 0.5])
+    e = eigenaxis_slew(prob)
+    assert e.theta[-1] == pytest.approx(2.5)
+    ratio = np.max(np.abs(e.u) / prob.torque_max)
+    assert ratio <= 1 + 1e-6
+    assert ratio > 0.999       # the bound is active: this is the fastest eigenaxis slew
+    assert e.rate[0] == 0 and e.rate[-1] == 0
+    # gyroscopic part present and sizeable at peak rate
+    J = prob.inertia
+    c = np.cross(e.axis, J * e.axis)
+    assert np.linalg.norm(c) * np.max(e.rate) ** 2 > 0.05
+    # slower than ignoring the gyroscopic torque
+    acc0 = 1.0 / np.max(np.abs(J * e.axis) / prob.torque_max)
+    assert e.tf > 2 * math.sqrt(2.5 / acc0)
+
+
+def test_rate_limit_creates_a_coast_arc():
+    prob = _prob([1, 1, 1], [0, 0, 1], 3.0, rate_max=0.8)
+    e = eigenaxis_slew(prob)
+    assert np.max(e.rate) == pytest.approx(0.8, rel=1e-6)
+    # accelerate to 0.8 (time 0.8, angle 0.32), coast, decelerate: closed form
+    assert e.tf == pytest.approx(2 * 0.8 + (3.0 - 2 * 0.32) / 0.8, rel=1e-6)
+
+
+def test_eigenaxis_rejects_pointing_targets():
+    with pytest.raises(ValueError, match="sensor_target"):
+        eigenaxis_slew(SlewProblem([1, 1, 1], sensor_target=[0, 1, 0]))

@@ -1,0 +1,85 @@
+"""Bad input to solvers.solve gives a clear ValueError naming the field, never a hang."""
+import math
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+
+
+def _prob(**kw):
+    d = dict(inertia=[1, 1, 1], qf=[0, 0, 0, 1])
+    d.update(kw)
+    return SlewProblem(**d)
+
+
+def test_cones_rejected_until_supported():
+    p = _prob(cones=[{"axis": [0, 1, 0], "half_angle_deg": 20}])
+    with pytest.raises(ValueError, match=r"^cones: .*not supported"):
+        solvers.solve(p)
+
+
+def test_pointing_target_rejected_until_supported():
+    p = SlewProblem([1, 1, 1], sensor_target=[0, 1, 0])
+    with pytest.raises(ValueError, match=r"^sensor_target: pointing-only"):
+        solvers.solve(p)
+
+
+def test_nan_in_problem_dict():
+    with pytest.raises(ValueError, match=r"^inertia: all entries must be finite"):
+        solvers.solve({"inertia": [1, float("nan"), 1], "qf": [0, 0, 0, 1]})
+
+
+def test_problem_of_wrong_type():
+    with pytest.raises(ValueError, match=r"^problem: expected a SlewProblem or a dict"):
+        solvers.solve([1, 2, 3])
+
+
+def test_unknown_method():
+    with pytest.raises(ValueError, match=r"^method: unknown method 'newton'"):
+        solvers.solve(_prob(), method="newton")
+
+
+def test_unknown_option():
+    with pytest.raises(ValueError, match=r"^options: unknown option\(s\) \['tolerance'\]"):
+        solvers.solve(_prob(), tolerance=1e-3)
+
+
+def test_bad_segments():
+    with pytest.raises(ValueError, match=r"^segments: must be a positive integer"):
+        solvers.solve(_prob(), method="multiple-shooting", segments=0)
+
+
+def test_guess_with_nan_costate():
+    with pytest.raises(ValueError, match=r"^guess.costate0: all entries must be finite"):
+        solvers.Guess(costate0=[0, 0, 0, 1, 0, 0, float("nan")], tf=3.0)
+
+
+def test_guess_with_bad_tf_and_shape():
+    with pytest.raises(ValueError, match=r"^guess.tf: must be a positive finite time"):
+        solvers.Guess(costate0=np.ones(7), tf=-1.0)
+    with pytest.raises(ValueError, match=r"^guess.costate0: expected 7 numbers"):
+        solvers.Guess(costate0=np.ones(6), tf=1.0)
+    with pytest.raises(ValueError, match=r"^guess.switch_times: expected a list of 3 arrays"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[0.1], [0.2]])
+
+
+def test_guess_of_wrong_type():
+    with pytest.raises(ValueError, match=r"^guess: expected a solvers.Guess"):
+        solvers.solve(_prob(), guess={"tf": 3})
+
+
+def test_a_wild_guess_fails_cleanly_within_budget():
+    # a guess that cannot converge, with every other candidate disabled: the result says so
+    g = solvers.Guess(costate0=[0, 0, 0, 1, 0, 0, 0], tf=0.01, source="wild")
+    sol = solvers.solve(_prob(), guess=g, max_candidates=1, time_budget=20)
+    assert not sol.success
+    assert sol.status in (1, 2, 3)
+    assert sol.n_candidates == 1
+    assert "wild" in sol.message or "verification" in sol.message
+
+
+def test_zero_slew_is_an_error_free_trivial_problem():
+    with pytest.raises(ValueError, match=r"qf: the target equals the start"):
+        solvers.solve(_prob(qf=[1, 0, 0, 0]))
