@@ -13,6 +13,7 @@ import sys
 SUBCOMMANDS = {
     "check": ("training.cli_check", "validate a problem JSON file and describe it"),
     "env-demo": ("training.cli_env_demo", "run a random policy on Slew-v0 and save a rendered frame"),
+    "solve": ("training.cli_solve", "solve a slew (time-optimal, verified) from a problem JSON or a JSONL batch"),
 }
 
 

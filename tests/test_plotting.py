@@ -1,0 +1,87 @@
+"""solvers.plotting: the five-panel figure of a SlewSolution and the Hamiltonian along it."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.fixture(scope="module")
+def r3_solution():
+    from solvers import solve
+    prob = SlewProblem.from_dict(json.loads((EXAMPLES / "r3_seed_report_per_axis.json").read_text()))
+    sol = solve(prob)
+    assert sol.success, sol.message
+    return sol
+
+
+def test_hamiltonian_is_minus_one_along_r3(r3_solution):
+    from solvers.plotting import hamiltonian_along
+    H = hamiltonian_along(r3_solution)
+    assert H.shape == r3_solution.t.shape
+    assert np.max(np.abs(H + 1.0)) < 1e-6
+
+
+def test_switching_functions_match_the_torques(r3_solution):
+    """u_i = -u_max sign(S_i) wherever S_i is clearly away from zero (per-axis bound)."""
+    from solvers.plotting import switching_functions
+    S = switching_functions(r3_solution)
+    u = r3_solution.u
+    away = np.abs(S) > 1e-6 * np.max(np.abs(S))
+    assert np.all(np.sign(u[away]) == -np.sign(S[away]))
+
+
+def test_plot_has_five_panels_and_is_saved(r3_solution, tmp_path):
+    import matplotlib.pyplot as plt
+    from solvers.plotting import PANEL_TITLES, hamiltonian_along, plot_solution
+    before = plt.get_fignums()
+    path = tmp_path / "r3.png"
+    fig = plot_solution(r3_solution, path)
+    assert plt.get_fignums() == before          # saving never goes through pyplot
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    axes = fig.axes
+    assert len(axes) == 5
+    for ax, title in zip(axes, PANEL_TITLES):
+        assert ax.get_title(loc="left").startswith(title)
+    # torques panel: 3 torque curves + one vertical line per switch (5 for R3 per-axis)
+    ax_u = axes[2]
+    assert len(ax_u.get_lines()) == 3 + r3_solution.n_switches == 8
+    # switching-function panel: 3 curves + the zero line
+    assert len(axes[3].get_lines()) == 4
+    # Hamiltonian panel: H and the -1 reference
+    h_line = axes[4].get_lines()[0]
+    np.testing.assert_allclose(h_line.get_ydata(), hamiltonian_along(r3_solution), rtol=0, atol=0)
+    np.testing.assert_allclose(h_line.get_ydata(), -1.0, atol=1e-6)
+    title = fig._suptitle.get_text()
+    assert "tf = 2.354017" in title and "indirect" in title and "True" in title
+
+
+def test_plot_without_path_uses_pyplot(r3_solution):
+    import matplotlib.pyplot as plt
+    from solvers.plotting import plot_solution
+    fig = plot_solution(r3_solution)
+    try:
+        assert fig.number in plt.get_fignums()
+        assert len(fig.axes) == 5
+    finally:
+        plt.close(fig)
+
+
+def test_plot_of_a_solution_without_trajectory_is_a_value_error():
+    from solvers import SlewSolution
+    from solvers.plotting import plot_solution
+    sol = SlewSolution(False, 1, "No candidate converged.", nit=0, nfev=0, wall_time=0.0)
+    with pytest.raises(ValueError, match="no trajectory"):
+        plot_solution(sol)
+
+
+def test_importing_solvers_does_not_import_pyplot():
+    import subprocess
+    import sys
+    code = "import sys, solvers; print('matplotlib.pyplot' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

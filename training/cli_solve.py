@@ -1,0 +1,370 @@
+"""``slew solve``: time-optimal slew of a problem JSON file, or of a JSONL batch.
+
+Single problem::
+
+    slew solve PROBLEM.json [-o SOLUTION.json] [--method auto|indirect|multiple-shooting]
+               [--segments N] [--max-candidates N] [--seed S] [--plot FIG.png] [--no-dense]
+
+prints a short summary and, with ``-o``, writes the solution JSON
+(``SlewSolution.to_dict``: success, status, message, tf, costate0, switch_times,
+u_first, nit, nfev, wall_time_s, method, route, guess, n_candidates, candidates_tf,
+verification, problem, and the dense samples t, q, omega, u, costate unless
+``--no-dense``). ``-o -`` writes the JSON to stdout (the summary then goes to stderr).
+Exit code: 0 on success, 1 when the solver reports ``success=False`` (the solution is
+still written), 2 on bad input.
+
+Batch::
+
+    slew solve --batch PROBLEMS.jsonl -o SOLUTIONS.jsonl [--workers N] [--dense] [...]
+
+One problem per line (blank lines skipped), one solution per line in the same order,
+each with a ``"line"`` key (1-based line number in the input). A line that does not
+validate gives ``{"line": k, "success": false, "status": -1, "message": "..."}`` and the
+batch goes on (an unexpected exception in the solver gives the same record with status -2
+and a message starting "internal error"). Dense samples are left out unless ``--dense``. ``--workers N > 1`` solves
+in a process pool (spawned workers; each pays the import of ``solvers`` once).
+Exit code: 0 when every line was solved, 1 otherwise, 2 on bad options or an unreadable
+batch file.
+
+Output files are written atomically: a temporary file in the same directory, renamed over
+the target only when complete, so an interrupted run never leaves a half-written file.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+
+METHOD_CHOICES = ("auto", "indirect", "multiple-shooting")   # == solvers.METHODS (not imported: fast --help)
+BAD_LINE_STATUS = -1        # batch record of a line that does not validate (ValueError)
+INTERNAL_ERROR_STATUS = -2  # batch record of a line on which the solver raised anything else
+
+
+def add_arguments(p):
+    p.add_argument("problem", nargs="?", metavar="PROBLEM.json",
+                   help="problem JSON file (see README, 'Problem format')")
+    p.add_argument("--batch", metavar="PROBLEMS.jsonl",
+                   help="solve every problem of a JSON-lines file (one problem per line) instead")
+    p.add_argument("-o", "--output", metavar="FILE",
+                   help="write the solution JSON here (batch: JSON lines; required); '-' for stdout")
+    p.add_argument("--method", default="auto", metavar="METHOD",
+                   help=f"solver: {' | '.join(METHOD_CHOICES)} (default auto)")
+    p.add_argument("--segments", type=int, metavar="N",
+                   help="shooting segments (default: 4 for multiple-shooting, 1 otherwise)")
+    p.add_argument("--max-candidates", type=int, metavar="N",
+                   help="most candidate guesses to try (default: the solver's)")
+    p.add_argument("--seed", type=int, metavar="S", help="seed of the perturbed candidates (default: the solver's, 0)")
+    p.add_argument("--plot", metavar="FIG.png", help="save a figure of the solution (single problem only)")
+    dense = p.add_mutually_exclusive_group()
+    dense.add_argument("--no-dense", dest="dense", action="store_false", default=None,
+                       help="leave the dense samples t, q, omega, u, costate out of the JSON")
+    dense.add_argument("--dense", dest="dense", action="store_true", default=None,
+                       help="batch: include the dense samples (left out by default)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="batch: worker processes (default 1)")
+    p.add_argument("--no-progress", action="store_true", help="batch: no progress bar")
+
+
+# --------------------------------------------------------------------------- helpers
+def _read_text(path, what):
+    """File contents; any OS error becomes a one-line ValueError."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except OSError as e:
+        raise ValueError(f"{what}: cannot read {str(path)!r}: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{what}: {str(path)!r} is not UTF-8 text ({e.reason})") from None
+
+
+def _solve_options(args):
+    if args.method not in METHOD_CHOICES:
+        raise ValueError(f"--method: unknown method {args.method!r}; choose one of {', '.join(METHOD_CHOICES)}")
+    opts = {}
+    for name in ("segments", "max_candidates"):
+        v = getattr(args, name)
+        if v is not None:
+            if v < 1:
+                raise ValueError(f"--{name.replace('_', '-')}: must be a positive integer, got {v}")
+            opts[name] = v
+    if args.seed is not None:
+        opts["seed"] = args.seed
+    return opts
+
+
+def _check_writable(path, what):
+    """Fail before solving (one line) if ``path`` cannot be created."""
+    if path is None or path == "-":
+        return
+    target = os.path.abspath(path)
+    d = os.path.dirname(target)
+    if not os.path.isdir(d):
+        raise ValueError(f"{what}: directory {d!r} does not exist")
+    if os.path.isdir(target):
+        raise ValueError(f"{what}: {path!r} is a directory")
+    if not os.access(d, os.W_OK):
+        raise ValueError(f"{what}: directory {d!r} is not writable")
+
+
+class AtomicWriter:
+    """Text file written to ``path`` atomically (temp file in the same dir + ``os.replace``).
+
+    ``path == "-"`` writes to stdout instead (not atomic). Use as a context manager: the
+    target appears only if the block completes; otherwise the temp file is removed.
+    """
+
+    def __init__(self, path):
+        self.path = path
+        self._tmp = None
+        self._f = None
+
+    def __enter__(self):
+        if self.path == "-":
+            self._f = sys.stdout
+            return self._f
+        _check_writable(self.path, "-o")
+        target = os.path.abspath(self.path)
+        d = os.path.dirname(target)
+        try:
+            fd, self._tmp = tempfile.mkstemp(dir=d, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
+        except OSError as e:
+            raise ValueError(f"-o: cannot write in {d!r}: {e.strerror or e}") from None
+        # mkstemp creates 0600; give the file the usual permissions (umask applied)
+        umask = os.umask(0)
+        os.umask(umask)
+        try:
+            os.chmod(self._tmp, 0o666 & ~umask)
+        except OSError:
+            pass
+        self._f = os.fdopen(fd, "w", encoding="utf-8")
+        self._target = target
+        return self._f
+
+    def __exit__(self, exc_type, exc, tb):
+        if self.path == "-":
+            sys.stdout.flush()
+            return False
+        try:
+            if exc_type is None:
+                self._f.flush()
+                os.fsync(self._f.fileno())
+            self._f.close()
+            if exc_type is None:
+                os.replace(self._tmp, self._target)
+                self._tmp = None
+        finally:
+            if self._tmp is not None and os.path.exists(self._tmp):
+                os.remove(self._tmp)
+        return False
+
+
+def _fmt_tf(x):
+    return "nan" if x is None or not math.isfinite(x) else f"{x:.10g}"
+
+
+def summary_lines(sol, prob):
+    """Human summary of a ``SlewSolution`` (list of lines)."""
+    L = []
+    tau = prob.time_unit
+    L.append(f"success       {sol.success}  (status {sol.status}) {sol.message}")
+    tf_note = ("problem time units: seconds if J is in kg·m² and torque in N·m; "
+               f"tf/τ = {_fmt_tf(sol.tf / tau)} with τ = sqrt(J_max/u_max) = {tau:.6g}")
+    L.append(f"tf            {_fmt_tf(sol.tf)}  ({tf_note})")
+    if math.isinf(prob.torque_norm):
+        n = sum(len(s) for s in sol.switch_times)
+        per_axis = ", ".join(f"{ax} {len(s)}" + (f" [{', '.join(f'{v:.6g}' for v in s)}]" if len(s) else "")
+                             for ax, s in zip("xyz", sol.switch_times))
+        L.append(f"switches      {n} in all: {per_axis}")
+    else:
+        L.append(f"switches      none (p = {prob.torque_norm:g} norm bound: continuous control)")
+    uf = "[" + ", ".join(f"{v:+g}" for v in sol.u_first) + "]"
+    L.append(f"u_first       {uf}  (sign of each axis's first arc)")
+    L.append(f"nit / nfev    {sol.nit} / {sol.nfev}")
+    L.append(f"wall time     {sol.wall_time:.3f} s")
+    L.append(f"method        {sol.method}")
+    L.append(f"route         {sol.route or '-'}")
+    L.append(f"guess         {sol.guess or '-'}")
+    cands = ", ".join(_fmt_tf(v) for v in sol.candidates_tf) or "none"
+    L.append(f"candidates    {sol.n_candidates} tried; final times of converged extremals: {cands}")
+    base = getattr(sol, "baseline_tf", math.nan)
+    if base is not None and math.isfinite(base):
+        rel = ""
+        if math.isfinite(sol.tf):
+            gain = 100.0 * (1.0 - sol.tf / base)
+            rel = f" (tf is {abs(gain):.2f} % {'faster' if gain >= 0 else 'slower'})"
+        L.append(f"baseline      eigenaxis slew tf = {_fmt_tf(base)}{rel}")
+    if sol.verification:
+        L.append("verification")
+        w = max(len(k) for k in sol.verification)
+        L.append(f"  {'check':<{w}}  {'value':>12}  {'tol':>10}  result")
+        for k, c in sol.verification.items():
+            L.append(f"  {k:<{w}}  {c['value']:>12.4g}  {c['tol']:>10.3g}  {'pass' if c['passed'] else 'FAIL'}")
+    else:
+        L.append("verification  none (no candidate converged)")
+    return L
+
+
+# --------------------------------------------------------------------------- single
+def _run_single(args, opts):
+    from slew_env import SlewProblem
+    from solvers import solve
+
+    if args.workers != 1:
+        raise ValueError("--workers: only with --batch")
+    text = _read_text(args.problem, "problem")
+    prob = SlewProblem.from_json(text)
+    dense = args.dense is not False
+    sol = solve(prob, method=args.method, **opts)
+    out = sys.stderr if args.output == "-" else sys.stdout
+    print(f"problem       {args.problem}: {prob!r}", file=out)
+    for line in summary_lines(sol, prob):
+        print(line, file=out)
+    if args.output:
+        with AtomicWriter(args.output) as f:
+            f.write(sol.to_json(dense=dense, indent=2))
+            f.write("\n")
+        if args.output != "-":
+            what = f"with {len(sol.t)} dense samples" if dense else "without dense samples"
+            print(f"solution      written to {args.output} ({what})", file=out)
+    else:
+        print("solution      not written (use -o SOLUTION.json)", file=out)
+    if args.plot:
+        from solvers.plotting import plot_solution
+        try:
+            plot_solution(sol, args.plot)
+            print(f"figure        written to {args.plot}", file=out)
+        except ValueError as e:
+            print(f"figure        not written: {e}", file=out)
+        except OSError as e:
+            raise ValueError(f"--plot: cannot write {args.plot!r}: {e.strerror or e}") from None
+    return 0 if sol.success else 1
+
+
+# --------------------------------------------------------------------------- batch
+def solve_line(lineno, text, method, opts, dense):
+    """One batch line -> one JSON record (string). Never raises."""
+    try:
+        from slew_env import SlewProblem
+        from solvers import solve
+        prob = SlewProblem.from_json(text)
+        sol = solve(prob, method=method, **opts)
+        d = {"line": lineno}
+        d.update(sol.to_dict(dense=dense))
+    except ValueError as e:
+        d = {"line": lineno, "success": False, "status": BAD_LINE_STATUS, "message": str(e)}
+    except Exception as e:   # a solver bug must not cost the rest of the batch
+        d = {"line": lineno, "success": False, "status": INTERNAL_ERROR_STATUS,
+             "message": f"internal error: {type(e).__name__}: {e}"}
+    return json.dumps(d)
+
+
+def _batch_items(path):
+    text = _read_text(path, "--batch")
+    return [(k, line) for k, line in enumerate(text.splitlines(), start=1) if line.strip()]
+
+
+def _run_batch(args, opts):
+    if args.problem:
+        raise ValueError("give either PROBLEM.json or --batch PROBLEMS.jsonl, not both")
+    if not args.output:
+        raise ValueError("--batch: needs -o SOLUTIONS.jsonl (or -o - for stdout)")
+    if args.plot:
+        raise ValueError("--plot: only for a single problem, not with --batch")
+    if args.workers < 1:
+        raise ValueError(f"--workers: must be a positive integer, got {args.workers}")
+    from tqdm import tqdm
+
+    items = _batch_items(args.batch)
+    dense = args.dense is True
+    t0 = time.perf_counter()
+    n_ok = n_bad_input = 0
+    bar = tqdm(total=len(items), file=sys.stderr, unit="problem", desc="slew solve",
+               disable=args.no_progress, dynamic_ncols=True)
+
+    def account(rec):
+        nonlocal n_ok, n_bad_input
+        d = json.loads(rec)
+        if d.get("success"):
+            n_ok += 1
+        elif d.get("status") == BAD_LINE_STATUS:
+            n_bad_input += 1
+
+    try:
+        with AtomicWriter(args.output) as f:
+            if args.workers == 1 or len(items) <= 1:
+                for k, line in items:
+                    rec = solve_line(k, line, args.method, opts, dense)
+                    f.write(rec + "\n")
+                    account(rec)
+                    bar.update(1)
+            else:
+                _batch_pool(items, args, opts, dense, f, account, bar)
+    except KeyboardInterrupt:
+        bar.close()
+        what = "stdout output incomplete" if args.output == "-" else f"{args.output} not written"
+        print(f"slew solve: interrupted; {what}", file=sys.stderr)
+        return 130
+    finally:
+        bar.close()
+    n = len(items)
+    n_fail = n - n_ok - n_bad_input
+    out = sys.stderr if args.output == "-" else sys.stdout
+    where = "stdout" if args.output == "-" else args.output
+    print(f"{n} problem(s): {n_ok} solved, {n_fail} not solved, {n_bad_input} invalid; "
+          f"{time.perf_counter() - t0:.2f} s; written to {where}", file=out)
+    return 0 if n_ok == n else 1
+
+
+def _batch_pool(items, args, opts, dense, f, account, bar):
+    """Process pool; a bounded window of tasks in flight; records written in input order."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    window = 4 * args.workers
+    ctx = multiprocessing.get_context("spawn")
+    done_recs = {}
+    next_write = 0
+    pending = {}
+    it = iter(enumerate(items))
+    ex = ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx)
+    try:
+        exhausted = False
+        while True:
+            while not exhausted and len(pending) < window:
+                try:
+                    idx, (k, line) = next(it)
+                except StopIteration:
+                    exhausted = True
+                    break
+                pending[ex.submit(solve_line, k, line, args.method, opts, dense)] = idx
+            if not pending:
+                break
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                idx = pending.pop(fut)
+                done_recs[idx] = fut.result()
+                bar.update(1)
+            while next_write in done_recs:
+                rec = done_recs.pop(next_write)
+                f.write(rec + "\n")
+                account(rec)
+                next_write += 1
+    except BaseException:   # Ctrl-C or a write error: drop the queued work, keep no half file
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown(wait=True)
+
+
+# --------------------------------------------------------------------------- entry
+def run(args):
+    opts = _solve_options(args)
+    _check_writable(args.output, "-o")
+    _check_writable(args.plot, "--plot")
+    if args.batch:
+        return _run_batch(args, opts)
+    if not args.problem:
+        raise ValueError("give a problem file PROBLEM.json, or --batch PROBLEMS.jsonl")
+    return _run_single(args, opts)
