@@ -11,6 +11,9 @@ Methods:
   multiple shooting.
 * ``"auto"`` — currently ``"indirect"`` (the cone and pointing-target routes will add to it).
 
+Defaults: per-axis 16 candidates at most and at least 8 before stopping early, p-norm 8
+and 3; a 20 s time budget. See ``solve``.
+
 Several extremals can exist (mirror images of the 180° slew; a worse local optimum of
 R5 at 29.135 s). ``solve`` tries candidates in order — the given guess and its own
 candidates, the eigenaxis guess, its images under the problem's symmetries, the
@@ -165,7 +168,12 @@ def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
         def control(tq):
             tq = np.asarray(tq, dtype=float)
             return np.stack([np.interp(tq, t, u[:, i]) for i in range(3)], axis=-1)
-    return dict(tf=a.T * tau, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
+    # tolerance of tf: the boundary errors and the independent replay bound how far the
+    # extremal is from reaching the target; tf is known to that order (relative), and never
+    # better than the integrator's 1e-10
+    err = max(checks[k]["value"] for k in ("boundary_attitude_error", "replay") if k in checks)
+    tf_tol = a.T * tau * max(1e-10, 10.0 * err)
+    return dict(tf=a.T * tau, tf_tol=tf_tol, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
                 q=tr.y[:, 0:4].copy(), omega=tr.y[:, 4:7] / tau, u=u, costate=costate,
                 _control=control, route=a.route, guess=guess_src, verification=checks)
 
@@ -177,11 +185,11 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     baseline, ``SlewSolution.baseline_tf``) is a local optimum: it is returned with
     ``success=False`` and status 4, never as the answer.
 
-    Options: ``segments`` (multiple shooting, default 4), ``max_candidates`` (default 24
+    Options: ``segments`` (multiple shooting, default 4), ``max_candidates`` (default 16
     per-axis, 8 p-norm), ``min_candidates`` (tried before stopping early, default 8
     per-axis, 3 p-norm), ``enough`` (converged
     candidates before stopping early, default 2), ``seed`` (for
-    the perturbed candidates, default 0), ``time_budget`` (s, default 60), ``tols``
+    the perturbed candidates, default 0), ``time_budget`` (s, default 20), ``tols``
     (verification tolerances, see ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400
     steps), ``eps_min`` (end of the smoothing path, default 1e-3), ``rtol``/``atol``
     (integrator).
@@ -207,11 +215,11 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     if segments < 1:
         raise ValueError(f"segments: must be a positive integer, got {segments}")
     per_axis = math.isinf(prob.torque_norm)
-    max_candidates = int(options.get("max_candidates", 24 if per_axis else 8))
+    max_candidates = int(options.get("max_candidates", 16 if per_axis else 8))
     min_candidates = int(options.get("min_candidates", 8 if per_axis else 3))
     enough = int(options.get("enough", 2))
     seed = options.get("seed", 0)
-    budget = float(options.get("time_budget", 60.0))
+    budget = float(options.get("time_budget", 20.0))
     tols = options.get("tols")
     n_dense = int(options.get("n_dense", 400))
     eps_min = float(options.get("eps_min", 1e-3))
@@ -266,20 +274,22 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
         found.append((a.T, a, tr, checks, src))
         if len(found) >= enough and tried >= min_candidates:
             Ts = sorted(f[0] for f in found)
-            beats_baseline = not (Ts[0] > baseline * (1 + 1e-9))
+            beats_baseline = not (Ts[0] > baseline * (1 + 1e-7))
             if len(Ts) >= 2 and abs(Ts[1] - Ts[0]) <= 1e-7 * Ts[0] and beats_baseline:
                 break
     wall = time.perf_counter() - t_start
     common = dict(nit=nit, nfev=nfev, method=method_used, n_candidates=tried, problem=prob,
                   baseline_tf=baseline * bvp.tau)
-    if found and min(f[0] for f in found) > baseline * (1 + 1e-9):
+    # the baseline is computed on a grid (conservative, i.e. never too fast): 1e-7 slack
+    if found and min(f[0] for f in found) > baseline * (1 + 1e-7):
         best_T = min(f[0] for f in found)
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
         fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
         cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
         return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
                             f"{STATUS_MESSAGES[STATUS_WORSE_THAN_BASELINE]} Best extremal {T * bvp.tau:.9g} vs "
-                            f"eigenaxis slew {baseline * bvp.tau:.9g}; tried {tried} candidate(s).",
+                            f"eigenaxis slew {baseline * bvp.tau:.9g}; tried {tried} candidate(s)."
+                            + (f" First failure: {failures[0]}" if failures else ""),
                             wall_time=time.perf_counter() - t_start, candidates_tf=cands, **common, **fields)
     if found:
         best_T = min(f[0] for f in found)

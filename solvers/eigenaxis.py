@@ -105,6 +105,9 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     theta = np.linspace(0.0, th, n_grid + 1)
     dth = theta[1] - theta[0]
 
+    # rounding leaves ~1e-17 of n × Jn for a symmetric body or a principal axis
+    if np.linalg.norm(c) <= 1e-12 * np.linalg.norm(a):
+        c = np.zeros(3)
     fixed = _accel_interval(a, c, U, p, 0.0) if not np.any(c) else None
 
     def interval(s):

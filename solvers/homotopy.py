@@ -30,14 +30,38 @@ class PathResult:
     message: str = ""
 
 
-def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1.05, tol=1e-9,
-                  max_newton=25, max_steps=60, on_point=None):
+def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1.05, tol=1e-8,
+                  max_newton=25, max_steps=60, on_point=None, path_rtol=1e-9):
     """Follow a one-parameter family from ``start`` to ``stop`` (geometric steps).
 
     ``set_param(bvp, value)`` configures the problem; a failed step is retried with a
     smaller factor (down to ``min_factor``). ``on_point(point) -> bool`` may stop the
-    path early (returns True to stop).
+    path early (returns True to stop); it runs at the problem's own tolerance, while
+    the path itself is integrated at ``path_rtol``.
     """
+    # the path's points are stepping stones: integrate them more loosely than answers
+    saved_tol = (bvp.rtol, bvp.atol)
+    bvp.rtol, bvp.atol = max(bvp.rtol, path_rtol), max(bvp.atol, path_rtol)
+    try:
+        return _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton,
+                         max_steps, on_point, saved_tol)
+    finally:
+        bvp.rtol, bvp.atol = saved_tol
+
+
+def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton, max_steps,
+              on_point, answer_tol):
+    def visit(point):
+        # on_point may solve for an answer: give it the answer tolerance meanwhile
+        if on_point is None:
+            return False
+        loose = (bvp.rtol, bvp.atol)
+        bvp.rtol, bvp.atol = answer_tol
+        try:
+            return on_point(point)
+        finally:
+            bvp.rtol, bvp.atol = loose
+
     points = []
     nit = nfev = 0
     cur = start
@@ -49,7 +73,7 @@ def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1
         return PathResult(False, points, nit, nfev, f"no solution at the start of the path ({r.message})")
     z, T = r.p, r.T
     points.append(PathPoint(cur, z, T))
-    if on_point is not None and on_point(points[-1]):
+    if visit(points[-1]):
         return PathResult(True, points, nit, nfev, "stopped early")
     f = factor
     down = stop < start
@@ -66,7 +90,7 @@ def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1
         if r.success and r.T > 0:
             cur, z, T = nxt, r.p, r.T
             points.append(PathPoint(cur, z, T))
-            if on_point is not None and on_point(points[-1]):
+            if visit(points[-1]):
                 return PathResult(True, points, nit, nfev, "stopped early")
             f = min(factor, f * 1.5)
         else:

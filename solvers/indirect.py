@@ -37,10 +37,14 @@ class Attempt:
     history: list = field(default_factory=list)
 
 
-def _event_check(bvp, z, T, structure, tol=1e-8):
-    """Event-driven propagation of ``(z, T)``: does it reproduce ``structure``?"""
+def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=400):
+    """Event-driven propagation of ``(z, T)``: does it reproduce ``structure``?
+
+    Steps are capped at ``T / n_steps`` (as in the verification) so that a switching
+    function that crosses zero twice within one long step is not missed.
+    """
     bvp.set_mode("bang")
-    tr = bvp.record(z, T)
+    tr = bvp.record(z, T, hmax=T / n_steps)
     if not tr.ok:
         return False, None, tr
     ev = Structure(tr.signs0, tr.switch_axis.astype(np.int64), tr.switch_t)
@@ -81,7 +85,7 @@ def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", ma
                    "the switching law does not reproduce the solved switch structure", r)
 
 
-def per_axis_from_guess(bvp, z, T, structure=None, *, eps_start=0.3, eps_min=1e-3,
+def per_axis_from_guess(bvp, z, T, structure=None, *, eps_start=1.0, eps_min=1e-3,
                         deadline=math.inf):
     """One attempt at the exact per-axis extremal from one nondimensional guess."""
     nit = nfev = 0
@@ -118,8 +122,32 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_start=0.3, eps_min=1e-
         a = found["a"]
         a.nit, a.nfev = nit, nfev
         return a
-    msg = path.message if not path.success else f"no bang-bang structure near the smoothed extremal (eps ≥ {eps_min:g})"
-    return Attempt(False, z, T, None, nit, nfev, "tanh continuation", msg)
+    if not path.success:
+        return Attempt(False, z, T, None, nit, nfev, "tanh continuation", path.message)
+    last = path.points[-1]
+    msg = (f"no bang-bang structure near the smoothed extremal (eps = {last.param:.3g}, "
+           f"tf = {last.T * bvp.tau:.9g})" + singular_diagnosis(bvp, last.z, last.T, last.param))
+    return Attempt(False, last.z, last.T, None, nit, nfev, "tanh continuation", msg)
+
+
+def singular_diagnosis(bvp, z, T, eps, threshold=0.05):
+    """Text naming the axes whose smoothed control stays unsaturated (|u_i| < 0.99 u_max)
+    for more than ``threshold`` of the time: the extremal has a (near-)singular arc there,
+    where the time-optimal control is not bang-bang (it may chatter)."""
+    bvp.set_mode("tanh", eps=eps)
+    tr = bvp.record(z, T, hmax=T / 1000)
+    bvp.set_mode("bang")
+    if not tr.ok or tr.t.shape[0] < 3:
+        return ""
+    S = tr.y[:, 11:14] / bvp.J
+    unsat = np.abs(np.tanh(S * bvp.umax / eps)) < 0.99
+    dt = np.diff(tr.t)
+    frac = (unsat[:-1] * dt[:, None]).sum(axis=0) / T
+    axes = [f"{'xyz'[i]} ({100 * frac[i]:.0f} % of the time)" for i in range(3) if frac[i] > threshold]
+    if not axes:
+        return ""
+    return ("; the control stays unsaturated on axis " + ", ".join(axes)
+            + ": a (near-)singular arc, where the time-optimal control is not bang-bang")
 
 
 def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9):
@@ -138,7 +166,7 @@ def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9):
     nit, nfev = r.nit, r.nfev
     if p != 2.0:
         start, stop = (2.0, p)
-        path = continue_path(bvp, z, T, start, stop, set_param=set_pnorm, factor=1.5, tol=tol)
+        path = continue_path(bvp, z, T, start, stop, set_param=set_pnorm, factor=1.5, tol=max(tol, 1e-8))
         nit += path.nit
         nfev += path.nfev
         if path.success:

@@ -30,7 +30,7 @@ class SlewSolution:
 
     Attributes (scipy style first): ``success``, ``status`` (see ``STATUS_MESSAGES``),
     ``message``, ``nit`` (Newton iterations, all candidates), ``nfev`` (propagations),
-    ``wall_time`` (s). Then, in the problem's units: ``tf``; ``costate0 = [λq(0), λω(0)]``
+    ``wall_time`` (s). Then, in the problem's units: ``tf`` and its tolerance ``tf_tol``; ``costate0 = [λq(0), λω(0)]``
     in the gauge ``λq(0)·q(0) = 0`` and the scale ``H ≡ -1``; ``switch_times`` (3 arrays,
     bang-bang only, empty for a p-norm bound); ``u_first`` (sign of each axis's first arc);
     dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``;
@@ -46,6 +46,7 @@ class SlewSolution:
     nfev: int
     wall_time: float
     tf: float = math.nan
+    tf_tol: float = math.nan
     costate0: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
     switch_times: List[np.ndarray] = field(default_factory=lambda: [np.zeros(0)] * 3)
     u_first: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -77,7 +78,7 @@ class SlewSolution:
     def __repr__(self):
         lines = [f"{k:>13}: {v}" for k, v in (
             ("success", self.success), ("status", self.status), ("message", self.message),
-            ("tf", self.tf), ("switches", [len(s) for s in self.switch_times]),
+            ("tf", f"{self.tf} ± {self.tf_tol:.1g}"), ("switches", [len(s) for s in self.switch_times]),
             ("u_first", self.u_first.tolist()), ("nit", self.nit), ("nfev", self.nfev),
             ("wall_time", f"{self.wall_time:.4f} s"), ("method", self.method), ("route", self.route),
             ("guess", self.guess), ("n_candidates", self.n_candidates))]
@@ -102,7 +103,7 @@ class SlewSolution:
             return x
         d = {
             "success": self.success, "status": self.status, "message": self.message,
-            "tf": self.tf, "costate0": self.costate0, "switch_times": self.switch_times,
+            "tf": self.tf, "tf_tol": self.tf_tol, "costate0": self.costate0, "switch_times": self.switch_times,
             "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
             "wall_time_s": self.wall_time, "method": self.method, "route": self.route,
             "guess": self.guess, "n_candidates": self.n_candidates,

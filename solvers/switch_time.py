@@ -108,8 +108,32 @@ def _residual(bvp, z, times, T, st, want_jac):
 
 
 def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,
-                       max_step=0.3):
-    """Newton on (costates, switch times, final time) for a fixed bang-bang structure."""
+                       max_step=0.3, coarse_rtol=1e-9):
+    """Newton on (costates, switch times, final time) for a fixed bang-bang structure.
+
+    Iterates first at the integrator tolerance ``coarse_rtol`` to a residual of about
+    ``1e3 · coarse_rtol`` (most iterations, cheap), then at the problem's own tolerance
+    to ``tol``.
+    """
+    if coarse_rtol is not None and coarse_rtol > bvp.rtol:
+        fine = (bvp.rtol, bvp.atol)
+        bvp.rtol, bvp.atol = coarse_rtol, coarse_rtol
+        try:
+            first = _solve_switch_times(bvp, z0, structure, T0, tol=1e3 * coarse_rtol, max_iter=max_iter,
+                                        max_step=max_step)
+        finally:
+            bvp.rtol, bvp.atol = fine
+        if not first.success:
+            return first
+        again = _solve_switch_times(bvp, first.z, first.structure, first.T, tol=tol, max_iter=max_iter,
+                                    max_step=max_step)
+        again.nit += first.nit
+        again.nfev += first.nfev
+        return again
+    return _solve_switch_times(bvp, z0, structure, T0, tol=tol, max_iter=max_iter, max_step=max_step)
+
+
+def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max_step):
     st = structure
     n = st.n
     x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)]])

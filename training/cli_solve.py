@@ -172,7 +172,9 @@ def summary_lines(sol, prob):
     L.append(f"success       {sol.success}  (status {sol.status}) {sol.message}")
     tf_note = ("problem time units: seconds if J is in kg·m² and torque in N·m; "
                f"tf/τ = {_fmt_tf(sol.tf / tau)} with τ = sqrt(J_max/u_max) = {tau:.6g}")
-    L.append(f"tf            {_fmt_tf(sol.tf)}  ({tf_note})")
+    tol = getattr(sol, "tf_tol", float("nan"))
+    tol_txt = f" ± {tol:.1g}" if tol == tol else ""
+    L.append(f"tf            {_fmt_tf(sol.tf)}{tol_txt}  ({tf_note})")
     if math.isinf(prob.torque_norm):
         n = sum(len(s) for s in sol.switch_times)
         per_axis = ", ".join(f"{ax} {len(s)}" + (f" [{', '.join(f'{v:.6g}' for v in s)}]" if len(s) else "")

@@ -28,6 +28,8 @@ import numpy as np
 from numba import njit
 from scipy.integrate._ivp import dop853_coefficients as _dop
 
+from slew_env.core.dynamics import state_rhs_scalar
+
 NY = 14
 MODE_BANG = 0
 MODE_PNORM = 1
@@ -93,7 +95,11 @@ def control(y, J, umax, mode, p, eps, signs):
 
 @njit(cache=True)
 def ext_rhs(y, u, J):
-    """Time derivative of the augmented state for a given torque."""
+    """Time derivative of the augmented state for a given torque.
+
+    The state part is the shared rigid-body dynamics (``slew_env.core.dynamics``);
+    ``λ̇q = ½ λq ⊗ [0, ω]`` is the same right multiplication as ``q̇``.
+    """
     f = np.empty(NY)
     q0, q1, q2, q3 = y[0], y[1], y[2], y[3]
     w0, w1, w2 = y[4], y[5], y[6]
@@ -101,17 +107,10 @@ def ext_rhs(y, u, J):
     c0 = J[2] - J[1]
     c1 = J[0] - J[2]
     c2 = J[1] - J[0]
-    f[0] = 0.5 * (-q1 * w0 - q2 * w1 - q3 * w2)
-    f[1] = 0.5 * (q0 * w0 + q2 * w2 - q3 * w1)
-    f[2] = 0.5 * (q0 * w1 - q1 * w2 + q3 * w0)
-    f[3] = 0.5 * (q0 * w2 + q1 * w1 - q2 * w0)
-    f[4] = (u[0] - c0 * w1 * w2) / J[0]
-    f[5] = (u[1] - c1 * w2 * w0) / J[1]
-    f[6] = (u[2] - c2 * w0 * w1) / J[2]
-    f[7] = 0.5 * (-l1 * w0 - l2 * w1 - l3 * w2)
-    f[8] = 0.5 * (l0 * w0 + l2 * w2 - l3 * w1)
-    f[9] = 0.5 * (l0 * w1 - l1 * w2 + l3 * w0)
-    f[10] = 0.5 * (l0 * w2 + l1 * w1 - l2 * w0)
+    f[0], f[1], f[2], f[3], f[4], f[5], f[6] = state_rhs_scalar(
+        q0, q1, q2, q3, w0, w1, w2, u[0], u[1], u[2], J[0], J[1], J[2])
+    f[7], f[8], f[9], f[10], _, _, _ = state_rhs_scalar(
+        l0, l1, l2, l3, w0, w1, w2, 0.0, 0.0, 0.0, J[0], J[1], J[2])
     # Im(q* ⊗ λq) = q0 lv - l0 qv - qv × lv
     im0 = q0 * l1 - l0 * q1 - (q2 * l3 - q3 * l2)
     im1 = q0 * l2 - l0 * q2 - (q3 * l1 - q1 * l3)
