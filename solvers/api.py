@@ -251,7 +251,8 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         elif per_axis:
-            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline)
+            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline,
+                                    T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf)
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
