@@ -106,7 +106,7 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         nonlocal nit, nfev
         if time.perf_counter() > deadline:
             return True
-        if pt.param > 0.05:
+        if pt.param > 0.05 * scale:
             return False
         bvp.set_mode("tanh", eps=pt.param)
         for st in structure_candidates(bvp, pt.z, pt.T):
@@ -121,9 +121,14 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         bvp.set_mode("tanh", eps=pt.param)
         return False
 
+    # ε is a width on σ = umax·S: scale the path to the size of the guess's switching
+    # functions (for the eigenaxis guess |λω(0)| = (T/4)/sqrt(1 + T²/16) with |z| = 1),
+    # so that a short slew with small S is smoothed as much as a long one
+    sig = float(np.max(np.abs(bvp.umax * np.asarray(z[3:6]) / bvp.J)))
+    scale = min(1.0, max(2.0 * sig, 1e-6))
     path = None
     for eps0 in eps_starts:
-        path = continue_path(bvp, z, T, eps0, eps_min, set_param=set_tanh, on_point=try_point)
+        path = continue_path(bvp, z, T, eps0 * scale, eps_min * scale, set_param=set_tanh, on_point=try_point)
         nit += path.nit
         nfev += path.nfev
         if path.points:       # the path started: do not restart it from another ε
