@@ -12,6 +12,7 @@ import sys
 # name -> (module, help). Each module provides ``add_arguments(parser)`` and ``run(args) -> int``.
 SUBCOMMANDS = {
     "check": ("training.cli_check", "validate a problem JSON file and describe it"),
+    "generate": ("training.cli_generate", "generate a dataset of solved slews from a task family (resumable)"),
     "env-demo": ("training.cli_env_demo", "run a random policy on Slew-v0 and save a rendered frame"),
     "solve": ("training.cli_solve", "solve a slew (time-optimal, verified) from a problem JSON or a JSONL batch"),
 }
