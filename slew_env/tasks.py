@@ -84,6 +84,8 @@ class TaskDistribution:
                                                    uniform in ``inertia_ratio``
     ``inertia``             ``(1, 1, 1)``          inertia of the fixed mode
     ``inertia_ratio``       ``(0.4, 1.0)``         range of ``J_i`` in the asymmetric mode
+    ``symmetric_prob``      ``0.0``                asymmetric mode: probability that the body
+                                                   is symmetric ``(1, 1, 1)`` instead
     ``torque_max``          ``(1, 1, 1)``          torque bound (one number or three)
     ``torque_norm``         ``"inf"``              ``"inf"`` per-axis bound, or ``p > 1``
     ``sensor_axis``         ``(1, 0, 0)``          body sensor axis
@@ -109,7 +111,8 @@ class TaskDistribution:
     Families (``TaskDistribution.family(name, **overrides)``):
 
     - ``"full-attitude"``: full attitude targets, θ in [10°, 180°], no cones,
-      asymmetric inertia with ``J_i`` in [0.4, 1], unit per-axis torque.
+      half symmetric bodies (1, 1, 1), half asymmetric with ``J_i`` in [0.4, 1],
+      unit per-axis torque.
     - ``"pointing-cones"``: pointing-only targets, θ in [40°, 180°], 1 to 3 cones
       with half-angles in [10°, 30°] (the first across the short path), the same
       bodies and torque bound.
@@ -123,6 +126,7 @@ class TaskDistribution:
     inertia_mode: str = "asymmetric"
     inertia: tuple = (1.0, 1.0, 1.0)
     inertia_ratio: tuple = (0.4, 1.0)
+    symmetric_prob: float = 0.0
     torque_max: Union[float, tuple] = (1.0, 1.0, 1.0)
     torque_norm: Union[str, float] = "inf"
     sensor_axis: tuple = (1.0, 0.0, 0.0)
@@ -146,6 +150,10 @@ class TaskDistribution:
         if ratio[0] <= 0.0:
             raise ValueError(f"inertia_ratio: must be positive, got {ratio}")
         set_("inertia_ratio", ratio)
+        p_sym = _probability("symmetric_prob", self.symmetric_prob)
+        if p_sym >= 1.0:
+            raise ValueError("symmetric_prob: must be < 1 (use inertia_mode='symmetric' for symmetric bodies only)")
+        set_("symmetric_prob", p_sym)
         set_("torque_max", _positive3("torque_max", self.torque_max))
         set_("torque_norm", self._check_norm(self.torque_norm))
         axis = np.asarray(self.sensor_axis, dtype=float)
@@ -237,6 +245,7 @@ class TaskDistribution:
         d[_s.D_PATH_PROB] = self.path_cone_prob
         d[_s.D_PATH_OFFSET] = self.path_offset
         d[_s.D_MAX_TRIES] = self.max_cone_tries
+        d[_s.D_SYMMETRIC_PROB] = self.symmetric_prob
         return d
 
     def sample_task_array(self, rng, max_cones: Optional[int] = None, out=None) -> np.ndarray:
@@ -281,7 +290,7 @@ def unplaceable_message(max_blocks, block):
 
 
 FAMILIES = {
-    "full-attitude": TaskDistribution(name="full-attitude"),
+    "full-attitude": TaskDistribution(name="full-attitude", symmetric_prob=0.5),
     "pointing-cones": TaskDistribution(
         name="pointing-cones", angle_deg=(40.0, 180.0), pointing_prob=1.0, n_cones=(1, 3),
         cone_half_angle_deg=(10.0, 30.0)),

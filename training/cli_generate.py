@@ -5,7 +5,7 @@
     slew generate --family full-attitude --n 1000 --seed 0 -o data/a.jsonl
                   [--workers N] [--backend local|ray] [--address ADDR]
                   [--time-budget S] [--max-candidates N] [--solve-options JSON]
-                  [--family-options JSON] [--symmetric-fraction F] [--solve-fn MODULE:FUNCTION]
+                  [--family-options JSON] [--solve-fn MODULE:FUNCTION]
                   [--no-progress] [--no-fsync]
 
 Problem ``i`` is the family's task distribution sampled with
@@ -49,9 +49,6 @@ def add_arguments(p):
     p.add_argument("--family-options", metavar="JSON", default=None,
                    help="TaskDistribution fields changed from the family's, as a JSON object, "
                         "e.g. '{\"n_cones\": [1, 1]}'")
-    p.add_argument("--symmetric-fraction", type=float, default=0.0, metavar="F",
-                   help="probability that a problem uses the symmetric body J = (1, 1, 1) (default 0: "
-                        "the family's inertia)")
     p.add_argument("--solve-fn", default=None, metavar="MODULE:FUNCTION",
                    help="solve route, a function (problem, **options) -> SlewSolution "
                         "(default training.generate:solve_default = solvers.solve)")
@@ -99,7 +96,6 @@ def build_spec(args):
     overrides.pop("name", None)
     try:
         return GenerationSpec(args.family, seed=args.seed, n=args.n, overrides=overrides,
-                              symmetric_fraction=args.symmetric_fraction,
                               solve_fn=args.solve_fn or DEFAULT_SOLVE_FN, solve_options=opts)
     except TypeError as e:   # an unknown TaskDistribution field
         raise ValueError(f"--family-options: {e}") from None

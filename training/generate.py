@@ -1,8 +1,7 @@
 """Dataset generation: draw slews from a task family, solve each, append records to a dataset file.
 
 Problem ``i`` of a run is ``problem_for(spec, i)``: the family's ``TaskDistribution`` sampled
-with ``np.random.default_rng([seed, i])`` (with ``symmetric_fraction > 0``, a separate
-stream ``default_rng([seed, i, 1])`` first picks symmetric or asymmetric inertia). The set
+with ``np.random.default_rng([seed, i])``. The set
 of problems therefore depends only on (family, overrides, seed, index), never on worker
 scheduling, and a restarted run regenerates exactly the same problems.
 
@@ -63,16 +62,14 @@ class GenerationSpec:
     """What a run generates. Everything that fixes the problems is in the file's metadata.
 
     ``family``: a ``slew_env.tasks.FAMILIES`` name; ``overrides``: ``TaskDistribution``
-    fields changed from the family's; ``symmetric_fraction``: probability that a problem
-    uses the symmetric body ``J = (1, 1, 1)`` instead of the family's inertia (0: the family
-    as it is); ``n``: indices ``0 .. n-1``; ``solve_fn``: ``"module:function"`` of the
+    fields changed from the family's (e.g. ``symmetric_prob``, the share of symmetric
+    bodies); ``n``: indices ``0 .. n-1``; ``solve_fn``: ``"module:function"`` of the
     solve route; ``solve_options``: keyword options passed to it.
     """
     family: str
     seed: int = 0
     n: int = 0
     overrides: dict = field(default_factory=dict)
-    symmetric_fraction: float = 0.0
     solve_fn: str = DEFAULT_SOLVE_FN
     solve_options: dict = field(default_factory=dict)
 
@@ -81,25 +78,17 @@ class GenerationSpec:
             raise ValueError(f"seed: expected a non-negative integer, got {self.seed!r}")
         if not isinstance(self.n, (int, np.integer)) or self.n < 0:
             raise ValueError(f"n: expected a non-negative integer, got {self.n!r}")
-        f = float(self.symmetric_fraction)
-        if not 0.0 <= f <= 1.0:
-            raise ValueError(f"symmetric_fraction: must lie in [0, 1], got {f:g}")
         if ":" not in self.solve_fn:
             raise ValueError(f"solve_fn: expected 'module:function', got {self.solve_fn!r}")
         self.distribution()   # validates family and overrides now, with the TaskDistribution's errors
 
-    def distribution(self, symmetric: bool = False):
+    def distribution(self):
         from slew_env.tasks import TaskDistribution
-        over = dict(self.overrides)
-        if symmetric:
-            over["inertia_mode"] = "symmetric"
-        return TaskDistribution.family(self.family, **over)
+        return TaskDistribution.family(self.family, **self.overrides)
 
     def distribution_dict(self) -> dict:
         """The parameters that fix the problems (stored in the metadata, checked on resume)."""
-        d = json.loads(json.dumps(dataclasses.asdict(self.distribution()), default=str))
-        d["symmetric_fraction"] = float(self.symmetric_fraction)
-        return d
+        return json.loads(json.dumps(dataclasses.asdict(self.distribution()), default=str))
 
     def meta(self, **extra) -> dict:
         return make_meta(self.family, int(self.seed), self.distribution_dict(), n=int(self.n),
@@ -109,10 +98,7 @@ class GenerationSpec:
 
 def problem_for(spec: GenerationSpec, index: int):
     """Problem ``index`` of ``spec`` (a ``SlewProblem``); depends only on family, overrides, seed, index."""
-    symmetric = False
-    if spec.symmetric_fraction > 0.0:
-        symmetric = np.random.default_rng([int(spec.seed), int(index), 1]).random() < spec.symmetric_fraction
-    return spec.distribution(symmetric).sample(np.random.default_rng([int(spec.seed), int(index)]))
+    return spec.distribution().sample(np.random.default_rng([int(spec.seed), int(index)]))
 
 
 # --------------------------------------------------------------------------- solver version

@@ -57,7 +57,8 @@ D_CLEARANCE = 20      # start/target sensor directions clear every cone by this 
 D_PATH_PROB = 21      # probability that a cone after the first lies across the path
 D_PATH_OFFSET = 22    # sideways offset of a path cone, as a fraction of its half-angle
 D_MAX_TRIES = 23      # attempts per cone before the task is redrawn
-DIST_LENGTH = 24
+D_SYMMETRIC_PROB = 24  # asymmetric mode: probability of a symmetric body (1, 1, 1) instead
+DIST_LENGTH = 25
 
 INERTIA_FIXED = 0
 INERTIA_SYMMETRIC = 1
@@ -120,13 +121,20 @@ def sample_task(dist, u, task):
 
         J = np.empty(3)
         mode = int(dist[D_INERTIA_MODE])
+        p_sym = dist[D_SYMMETRIC_PROB]
+        if mode == INERTIA_ASYMMETRIC and u[pos] < p_sym:
+            mode = INERTIA_SYMMETRIC
         for i in range(3):
             if mode == INERTIA_FIXED:
                 J[i] = dist[D_INERTIA + i]
             elif mode == INERTIA_SYMMETRIC:
                 J[i] = 1.0
             else:
-                J[i] = dist[D_RATIO_MIN] + (dist[D_RATIO_MAX] - dist[D_RATIO_MIN]) * u[pos + i]
+                ui = u[pos + i]
+                if i == 0 and p_sym > 0.0:
+                    # the same uniform chose the body: given u ≥ p it is uniform on [p, 1)
+                    ui = (ui - p_sym) / (1.0 - p_sym)
+                J[i] = dist[D_RATIO_MIN] + (dist[D_RATIO_MAX] - dist[D_RATIO_MIN]) * ui
         pos += 3
         q0 = qfrom_uniform(u[pos], u[pos + 1], u[pos + 2])
         pos += 3
