@@ -1,0 +1,1450 @@
+"""Direct collocation (``method="collocation"``): Hermite–Simpson + IPOPT (CasADi).
+
+``solve_collocation(problem, ...) -> SlewSolution`` — free final time, per-axis or p-norm
+torque bound, rate limits, full-attitude or pointing-only targets, any number of
+keep-out cones. Same result type as the indirect solver (``method="collocation"``).
+
+Transcription
+-------------
+*Separated* Hermite–Simpson (Betts, *Practical Methods for Optimal Control*, §4.6) on
+``N`` intervals of a fixed mesh in normalised time ``s = t / T`` (uniform unless a mesh is
+given): states ``x = [q (4), ω (3)]`` and controls ``u (3)`` at the ``N + 1`` nodes and at the
+``N`` interval midpoints, plus the final time ``T``. Per interval ``k`` (length
+``h_k = T Δs_k``), two defects::
+
+    Simpson   x_{k+1} - x_k - h_k/6 (f_k + 4 f_m + f_{k+1})       = 0
+    Hermite   x_m - (x_k + x_{k+1})/2 - h_k/8 (f_k - f_{k+1})      = 0
+
+(together the 3-stage Lobatto IIIA scheme, order 4 on smooth arcs). Dynamics as in
+CONVENTIONS: ``q̇ = ½ q ⊗ [0, ω]``, ``J ω̇ = -ω × Jω + u``. Objective: ``min T``.
+The control model of an interval is the quadratic through its node, midpoint and node
+controls; the state model the cubic Hermite interpolant. (LGR is not implemented.)
+
+Units: as the indirect solver, nondimensional — inertia ``J / J_max``, torque
+``u / u_max`` (``u_max`` the largest per-axis bound), time ``t / τ`` with
+``τ = sqrt(J_max / u_max)``; everything is reported in the problem's units.
+
+Constraints
+-----------
+* start state fixed (variable bounds); final rate ``ω(T) = ωf`` (bounds);
+* full-attitude target: ``Im(qf* ⊗ q(T)) = 0`` — three *linear* equations whose solution
+  set is the line through ``±qf``: either sign of the quaternion is accepted, with no
+  sign choice and no non-smooth function;
+* pointing-only target: the homogeneous sensor direction ``d(q) = q ⊗ [0, s_b] ⊗ q*``
+  (degree 2 in ``q``) at ``T`` satisfies ``e1·d = e2·d = 0`` (``e1, e2`` orthonormal and
+  orthogonal to the target) and ``target·d ≥ 0``; the roll about the sensor is free;
+* per-axis torque bound: box bounds ``|u_i| ≤ u_max,i`` on node and midpoint controls,
+  **and** on the middle Bernstein coefficient ``2 u_m - (u_k + u_k+1)/2`` of each interval's
+  quadratic: the quadratic is a convex combination of its three Bernstein coefficients,
+  so it stays within the bound *between* the samples too. Without this the quadratic
+  overshoots the bound by up to 25 % across a switch; clipping it then makes the flown
+  control differ from the collocated one and the re-propagation missed R3's target by
+  2e-3 rad; with it the miss is 3e-7 rad (and ``tf`` is higher by about 1e-4, relative);
+* p-norm bound ``‖u / u_max‖_p ≤ 1`` at the samples and on the Bernstein coefficients
+  (convex, so the whole quadratic is inside the ball): ``Σ v_i² ≤ 1`` for ``p = 2``, and
+  ``Σ (v_i² + δ)^{p/2} ≤ 1`` with ``δ = 1e-10`` otherwise (``v_i = u_i / u_max,i``). ``δ`` makes
+  the constraint twice differentiable at ``v_i = 0``; it is *conservative* (the feasible
+  set lies inside the true ball, by at most ``3 δ^{p/2}`` in ``Σ|v_i|^p``);
+* rate limit: box bounds ``|ω_i| ≤ rate_max,i`` on node and midpoint rates, and on the two
+  inner Bernstein coefficients ``ω_k + h ω̇_k/3``, ``ω_k+1 - h ω̇_k+1/3`` of each interval's
+  cubic rate (same argument: the cubic stays within the limit between the samples);
+* keep-out cones: ``a·d(q) - cos(α + δ_c r) |q|² ≤ 0`` (homogeneous in ``q``) at the interior
+  nodes and all midpoints (the end points are fixed by the start and the target, which
+  ``SlewProblem`` checks and which may lie on a cone boundary, as in R4). ``δ_c`` is a
+  back-off (0 at first), ramped in over the first and last two intervals by ``r``: the
+  path can sag into a cone *between* the points (R4: by 2e-5 rad at N = 60), so after
+  the solve the re-propagated path is checked and, while its interior margin is
+  negative, the NLP is re-solved (warm) with ``δ_c`` increased by 1.5 times the violation
+  (at most 4 times; ``route`` says the back-off used; R4 needs about 1e-4 rad, which
+  costs about 1e-5 relative in ``tf``).
+
+Quaternion norm: **not** enforced by a constraint. The start is a unit quaternion and
+the kinematics preserve the norm; the scheme does so up to its truncation error (the
+drift is reported, ``quaternion_norm_drift``, typically 1e-7 – 1e-5). ``|q|² = 1`` at every
+node would duplicate what the defects already determine (a nearly dependent constraint,
+bad for IPOPT). Cone and pointing constraints are homogeneous in ``q``, so the drift does
+not affect them. Reported quaternions are normalised.
+
+Starts, grids, budget
+---------------------
+Starts: the fastest eigenaxis slew within the bounds (``solvers.eigenaxis_slew``; for a
+pointing target, to the attitude reached by the shortest rotation of the sensor; with
+boundary rates, that path with the rates blended in), plus ``n_starts - 1`` (default 3)
+seeded smooth perturbations of it — without them IPOPT never leaves the eigenaxis slew
+about a principal axis (R5), a stationary point held by symmetry — plus, when the
+eigenaxis path crosses a cone, two detours around the worst-crossed cone through a
+way-point 5° outside it. A given ``SlewSolution`` (its samples) or ``solvers.Guess``
+(propagated: bang-bang from its switch times, else the extremal of its costates)
+replaces the eigenaxis guess (one start by default).
+
+Every start is solved on a coarse grid of ``N / 2`` intervals; the best one (and a second
+within 0.2 % of it, mirror images excepted) is refined on ``N`` from its interpolated
+solution; ``tf_tol = |tf(N) - tf(N/2)|`` (conservative: R3 measured 1.3e-4 relative error
+against ``tf_tol`` 3e-4). The local optima seen on the coarse grid are listed in the
+message (R5: 28.65 and 34.32, sometimes 29.4). IPOPT is stopped at the ``time_budget``
+deadline (an iteration callback); if that happens before the refinement, the coarse
+answer is returned with status 3.
+
+Costates (covector mapping)
+---------------------------
+From the multipliers of the defect constraints. With IPOPT's Lagrangian
+``T + νᵀ g_Simpson + μᵀ g_Hermite + ...``, stationarity with respect to a node state
+``x_k`` splits into the part from the interval on its left (``L_k``) and on its right
+(``R_k``); ``λ(t_k⁺) ≈ R_k`` and ``λ(t_k⁻) ≈ -L_k`` (they differ across an active cone
+constraint, where the costate jumps). Reported node costates are ``(R_k - L_k) / 2``
+(``R_0`` at the start, ``-L_N`` at the end), midpoint costates the mean of the two
+neighbouring nodes'. Signs follow CONVENTIONS (``u_i = -u_max,i sign((J⁻¹λω)_i)``). The
+gauge is fixed by projecting ``λq(t)`` orthogonal to ``q(t)`` (so ``λq(0)·q(0) = 0``; ``λq·q``
+is a constant of the motion, so this is one gauge for all t), and the scale by ``H ≡ -1``
+(division by minus the median of ``H`` over the samples; ``max |H + 1|`` afterwards is the
+diagnostic ``hamiltonian_spread``). Units: ``λq`` times ``τ``, ``λω`` times ``τ²``, as the
+indirect solver reports them. Measured accuracy: ``COSTATE_ACCURACY``.
+
+Verification (``SlewSolution.verification``; each ``{value, tol, passed}``)
+--------------------------------------------------------------------------
+An independent re-propagation (scipy ``solve_ivp``, DOP853, ``rtol = 1e-10``,
+``atol = 1e-12``, interval by interval) of the returned control — the piecewise quadratic
+above (clipped to the bound, a no-op to IPOPT's 1e-8 bound relaxation) — from the start
+state. Checks:
+
+* ``boundary_attitude_error`` — rad: angle of ``qf* ⊗ q(tf)`` (full attitude) or between the
+  sensor and the target (pointing) at the end of the re-propagation;
+* ``boundary_rate_error`` — ``‖ω(tf) - ωf‖`` of the re-propagation (problem units; the
+  tolerance is nondimensional, divided by ``τ``);
+* ``max_defect`` — largest residual of the NLP's equality constraints (nondimensional);
+* ``cone_clearance`` — smallest clearance margin (rad) at the collocation points and on
+  the re-propagated path (24 samples per interval); must be ≥ -1e-6;
+* ``rate_limit`` — ``max |ω_i| / rate_max,i`` on the same samples (with a rate limit);
+* ``torque_bound`` — largest ``|u_i| / u_max,i`` (per-axis) or ``‖u / u_max‖_p`` of the NLP's
+  controls;
+* ``quaternion_norm_drift`` — ``max ||q| - 1|`` over the collocation points;
+* ``hamiltonian_spread`` — diagnostic of the costate estimate, never fails.
+
+Collocation is approximate, so the boundary tolerances are looser than the indirect
+solver's 1e-8: ``1e-4`` rad and ``1e-4`` (nondimensional rate) at N = 60, scaled by
+``(60 / N)²``, never below 1e-6 (measured: 3e-7 on R3, 2e-6 on R5, 5e-7 on R4 at N = 60).
+
+Status: ``success`` only when IPOPT reports ``Solve_Succeeded`` on the final grid and every
+check passes (else 1, not converged; 2, a check failed; 3, budget). A rest-to-rest
+full-attitude answer without cones that is slower than the eigenaxis slew (beyond
+``tf_tol``) — or, for a per-axis bound, no faster than it (within 0.1 %) — is a local
+optimum or the symmetric stationary point: status 4, never success.
+
+Per-axis bound: ``switch_times`` are the zero crossings of the collocated torque between
+clearly saturated samples (``|u_i| ≥ 0.5 u_max,i``), by linear interpolation: approximate,
+to a fraction of an interval (R3, N = 60: within 3e-3 of the indirect ones), and a
+singular or chattering arc (R4 BP2, axis 3) shows as extra switches; they do *not*
+reproduce the trajectory on their own — ``control(t)`` does. p-norm: empty lists.
+``u_first`` is the sign of each axis's first saturated sample.
+
+Not covered: a cone set that blocks every path is rejected before solving
+(``cones_block_every_path``, an optimistic grid test: gaps narrower than 0.5° count as
+open and are left to IPOPT, which then reports infeasibility or converges); starts or
+targets inside a cone are rejected by ``SlewProblem`` itself.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import List, Optional
+
+import numpy as np
+
+from slew_env import SlewProblem
+from slew_env.core.dynamics import state_rhs
+from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
+from slew_env.core.cones import angle_between
+from .guesses import Guess
+from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
+                       STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
+
+TRANSCRIPTIONS = ("hermite-simpson",)
+
+# Tolerances of the verification checks (see the module docstring). The boundary
+# tolerances are for N = 60 and scale with (60 / N)².
+DEFAULT_TOLS = {
+    "boundary_attitude_error": 1e-4,   # rad, at N = 60
+    "boundary_rate_error": 1e-4,       # nondimensional (ω τ), at N = 60
+    "max_defect": 1e-6,                # nondimensional
+    "cone_clearance": -1e-6,           # rad (minimum allowed margin)
+    "rate_limit": 1.0 + 1e-4,          # max |ω_i| / rate_max_i on the re-propagated path
+    "torque_bound": 1.0 + 1e-6,        # NLP controls, in units of the bound
+    "quaternion_norm_drift": 1e-4,
+}
+
+# Measured accuracy of the costate estimate against the indirect solver's extremal:
+# relative error ‖λ_colloc - λ_indirect‖ / ‖λ_indirect‖ of costate0, and the median / max
+# of the same along the samples (nondimensional costates; tests/test_collocation.py
+# checks R3). Bang-bang (per-axis) costates converge slowly and irregularly, because
+# the switches fall inside intervals; p-norm ones like h².
+COSTATE_ACCURACY = {
+    "R3 per-axis, N=30": {"costate0": 5.8e-3, "median": 6.1e-3, "max": 6.7e-3},
+    "R3 per-axis, N=60": {"costate0": 5.8e-3, "median": 6.0e-3, "max": 6.3e-3},
+    "R3 per-axis, N=120": {"costate0": 1.3e-3, "median": 1.3e-3, "max": 1.4e-3},
+    "R3 p=2, N=60": {"costate0": 7.8e-5, "median": 1.3e-4, "max": 2.4e-4},
+    "R3 p=2, N=120": {"costate0": 2.0e-5, "median": 3.2e-5, "max": 5.8e-5},
+    "R5 per-axis, N=60": {"costate0": 1.1e-2, "median": 1.3e-2, "max": 1.4e-2},
+    "R5 per-axis, N=120": {"costate0": 2.6e-3, "median": 3.1e-3, "max": 3.6e-3},
+}
+
+# IPOPT iterations allowed to one start on the coarse grid (a start that needs more is
+# not worth refining; converged coarse solves take 20-200)
+_COARSE_MAX_ITER = 200
+_P_SMOOTH_DELTA = 1e-10
+_SAMPLES_PER_INTERVAL = 24
+
+
+# ----------------------------------------------------------------------------- helpers
+def _as_problem(problem):
+    if isinstance(problem, SlewProblem):
+        return problem
+    if isinstance(problem, dict):
+        return SlewProblem.from_dict(problem)
+    raise ValueError(f"problem: expected a SlewProblem or a dict, got {type(problem).__name__}")
+
+
+def _qexp_body(q0, n, theta):
+    """``q0 ⊗ [cos θ/2, n sin θ/2]`` for arrays of ``theta``."""
+    th = np.asarray(theta, dtype=float)
+    d = np.stack([np.cos(0.5 * th), n[0] * np.sin(0.5 * th), n[1] * np.sin(0.5 * th),
+                  n[2] * np.sin(0.5 * th)], axis=-1)
+    return np.array([qmul(q0, di) for di in d.reshape(-1, 4)]).reshape(d.shape)
+
+
+def _perp_pair(v):
+    """Orthonormal ``e1, e2`` orthogonal to unit ``v``."""
+    i = int(np.argmin(np.abs(v)))
+    a = np.zeros(3)
+    a[i] = 1.0
+    e1 = np.cross(v, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(v, e1)
+    return e1, e2
+
+
+@dataclass
+class _Scaled:
+    """The problem in nondimensional units."""
+    prob: SlewProblem
+    tau: float
+    umax0: float
+    J: np.ndarray
+    U: np.ndarray
+    x0: np.ndarray
+    wf: np.ndarray
+    rate: Optional[np.ndarray]
+    p: float
+
+    @classmethod
+    def of(cls, prob):
+        Jmax = float(prob.inertia.max())
+        umax0 = float(prob.torque_max.max())
+        tau = math.sqrt(Jmax / umax0)
+        rate = None if prob.rate_max is None else prob.rate_max * tau
+        return cls(prob, tau, umax0, prob.inertia / Jmax, prob.torque_max / umax0,
+                   np.concatenate([prob.q0, prob.omega0 * tau]), prob.omegaf * tau, rate, prob.torque_norm)
+
+
+# ----------------------------------------------------------------------------- cone topology
+def cones_block_every_path(problem, resolution_deg=0.5):
+    """True when the keep-out cones certainly separate the start and target sensor directions.
+
+    Flood fill on a latitude–longitude grid of the sphere. A cell counts as blocked only
+    when it lies inside a cone by more than its own radius, so the test is optimistic: a
+    gap narrower than the grid is treated as open (IPOPT then decides), and a ``True`` is
+    never wrong by more than the resolution.
+    """
+    if not problem.cones:
+        return False
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    d = math.radians(resolution_deg)
+    n_lat = int(math.ceil(math.pi / d))
+    n_lon = int(math.ceil(2 * math.pi / d))
+    lat = -0.5 * math.pi + (np.arange(n_lat) + 0.5) * math.pi / n_lat
+    lon = (np.arange(n_lon) + 0.5) * 2 * math.pi / n_lon
+    LA, LO = np.meshgrid(lat, lon, indexing="ij")
+    P = np.stack([np.cos(LA) * np.cos(LO), np.cos(LA) * np.sin(LO), np.sin(LA)], axis=-1)
+    # a bound on the cell's angular circumradius: half-diagonal with the longitude extent
+    # of its wider (equator-side) edge, plus 1 %; a cell is blocked only when its centre is
+    # deeper inside a cone than that, i.e. the whole cell is inside the cone. A path from
+    # start to target crosses a chain of edge- or corner-adjacent cells, each holding a
+    # free point and so counted free: different components prove there is no path.
+    dlat = math.pi / n_lat
+    wide = np.cos(np.maximum(0.0, np.abs(LA) - 0.5 * dlat))
+    rad = 1.01 * 0.5 * np.hypot(dlat, 2 * math.pi / n_lon * wide) + 1e-9
+    free = np.ones((n_lat, n_lon), dtype=bool)
+    for c in problem.cones:
+        ang = np.arccos(np.clip(P @ c.axis, -1.0, 1.0))
+        free &= ang > c.half_angle - rad
+    idx = np.arange(n_lat * n_lon).reshape(n_lat, n_lon)
+    rows, cols = [], []
+
+    def link(a, b, m):
+        rows.append(a[m])
+        cols.append(b[m])
+    right = np.roll(idx, -1, axis=1)
+    link(idx, right, free & np.roll(free, -1, axis=1))
+    for shift in (0, 1, -1):   # down, down-right, down-left
+        down = np.roll(idx[1:], shift, axis=1)
+        fd = np.roll(free[1:], shift, axis=1)
+        link(idx[:-1], down, free[:-1] & fd)
+    # cells around each pole touch each other
+    for r in (0, n_lat - 1):
+        ring = idx[r][free[r]]
+        if ring.size > 1:
+            rows.append(ring[:-1])
+            cols.append(ring[1:])
+    rows = np.concatenate(rows)
+    cols = np.concatenate(cols)
+    G = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(idx.size, idx.size))
+    _, labels = connected_components(G, directed=False)
+
+    def cell(v):
+        v = np.asarray(v, float) / np.linalg.norm(v)
+        la = math.asin(max(-1.0, min(1.0, v[2])))
+        lo = math.atan2(v[1], v[0]) % (2 * math.pi)
+        i = min(n_lat - 1, int((la + 0.5 * math.pi) / (math.pi / n_lat)))
+        j = min(n_lon - 1, int(lo / (2 * math.pi / n_lon)))
+        # the start / target may sit on a cone boundary: use the nearest free cell around it
+        best = None
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                ii, jj = i + di, (j + dj) % n_lon
+                if 0 <= ii < n_lat and free[ii, jj]:
+                    dist = float(np.linalg.norm(P[ii, jj] - v))
+                    if best is None or dist < best[0]:
+                        best = (dist, idx[ii, jj])
+        return None if best is None else best[1]
+    a = cell(problem.start_direction)
+    b = cell(problem.target_direction)
+    if a is None or b is None:
+        return True
+    return labels[a] != labels[b]
+
+
+# ----------------------------------------------------------------------------- the NLP
+# Built NLPs are cached by structure (interval count, target kind, number of cones, norm,
+# IPOPT options): inertia, bounds, targets, cones and the mesh are NLP parameters or
+# variable / constraint bounds, so one build serves every problem of the same shape.
+_CACHE: "OrderedDict[tuple, _Template]" = OrderedDict()
+_CACHE_SIZE = 8
+
+
+class _Deadline:
+    """IPOPT iteration callback that stops the solve at a wall-clock deadline."""
+
+    def __init__(self, ca, nx, ng, npar):
+        deadline = self
+
+        class CB(ca.Callback):
+            def __init__(self):
+                ca.Callback.__init__(self)
+                self.construct("colloc_deadline", {})
+
+            def get_n_in(self):
+                return ca.nlpsol_n_out()
+
+            def get_n_out(self):
+                return 1
+
+            def get_name_in(self, i):
+                return ca.nlpsol_out(i)
+
+            def get_name_out(self, i):
+                return "ret"
+
+            def get_sparsity_in(self, i):
+                n = ca.nlpsol_out(i)
+                if n == "f":
+                    return ca.Sparsity.scalar()
+                if n in ("x", "lam_x"):
+                    return ca.Sparsity.dense(nx)
+                if n in ("g", "lam_g"):
+                    return ca.Sparsity.dense(ng)
+                return ca.Sparsity.dense(npar)
+
+            def eval(self, arg):
+                return [1 if time.perf_counter() > deadline.at else 0]
+        self.at = math.inf
+        self.cb = CB()
+
+
+class _Template:
+    """Separated Hermite–Simpson NLP of one structure, with its IPOPT solver."""
+
+    def __init__(self, N, pointing, n_cones, p, rate, tol, max_iter, verbose):
+        import casadi as ca
+        self.N, self.pointing, self.n_cones, self.p = N, pointing, n_cones, p
+        SX = ca.SX
+        # ---- parameters
+        nt = 9 if pointing else 4
+        P = SX.sym("P", 3 + 3 + nt + 3 + 4 * n_cones + 1 + N)
+        o = 0
+        Jp = P[o:o + 3]; o += 3
+        Up = P[o:o + 3]; o += 3
+        tdat = P[o:o + nt]; o += nt
+        sb = P[o:o + 3]; o += 3
+        cone_p = [P[o + 4 * c:o + 4 * c + 4] for c in range(n_cones)]; o += 4 * n_cones
+        delta = P[o]; o += 1
+        mesh = P[o:o + N]; o += N
+        self.n_par = int(P.shape[0])
+        self.i_par = dict(J=0, U=3, tdat=6, sb=6 + nt, cones=6 + nt + 3, delta=6 + nt + 3 + 4 * n_cones,
+                          mesh=6 + nt + 3 + 4 * n_cones + 1)
+        # ---- dynamics
+        x = SX.sym("x", 7)
+        u = SX.sym("u", 3)
+        J = SX.sym("J", 3)
+        q0, q1, q2, q3 = x[0], x[1], x[2], x[3]
+        w0, w1, w2 = x[4], x[5], x[6]
+        fx = ca.vertcat(0.5 * (-q1 * w0 - q2 * w1 - q3 * w2),
+                        0.5 * (q0 * w0 + q2 * w2 - q3 * w1),
+                        0.5 * (q0 * w1 - q1 * w2 + q3 * w0),
+                        0.5 * (q0 * w2 + q1 * w1 - q2 * w0),
+                        (u[0] - (J[2] - J[1]) * w1 * w2) / J[0],
+                        (u[1] - (J[0] - J[2]) * w2 * w0) / J[1],
+                        (u[2] - (J[1] - J[0]) * w0 * w1) / J[2])
+        f = ca.Function("f", [x, u, J], [fx])
+        # one interval: Simpson and Hermite defects
+        xk, xm, xk1 = SX.sym("xk", 7), SX.sym("xm", 7), SX.sym("xk1", 7)
+        uk, um, uk1 = SX.sym("uk", 3), SX.sym("um", 3), SX.sym("uk1", 3)
+        h = SX.sym("h")
+        fk, fm, fk1 = f(xk, uk, J), f(xm, um, J), f(xk1, uk1, J)
+        simpson = xk1 - xk - h / 6.0 * (fk + 4.0 * fm + fk1)
+        hermite = xm - 0.5 * (xk + xk1) - h / 8.0 * (fk - fk1)
+        D = ca.Function("D", [xk, xm, xk1, uk, um, uk1, h, J], [simpson, hermite])
+        nu, mu = SX.sym("nu", 7), SX.sym("mu", 7)
+        Lint = ca.dot(nu, simpson) + ca.dot(mu, hermite)
+        # d/dx_k and d/dx_k+1 of one interval's part of the Lagrangian (covector mapping)
+        self.dL = ca.Function("dL", [xk, xm, xk1, uk, um, uk1, h, J, nu, mu],
+                              [ca.gradient(Lint, xk), ca.gradient(Lint, xk1)]).map(N)
+        # homogeneous sensor direction q ⊗ [0, s] ⊗ q* (degree 2 in q)
+        qs = SX.sym("q", 4)
+        s_ = SX.sym("s", 3)
+        a0, a1, a2, a3 = qs[0], qs[1], qs[2], qs[3]
+        dv = ca.vertcat(
+            (a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3) * s_[0] + 2 * (a1 * a2 - a0 * a3) * s_[1]
+            + 2 * (a1 * a3 + a0 * a2) * s_[2],
+            2 * (a1 * a2 + a0 * a3) * s_[0] + (a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3) * s_[1]
+            + 2 * (a2 * a3 - a0 * a1) * s_[2],
+            2 * (a1 * a3 - a0 * a2) * s_[0] + 2 * (a2 * a3 + a0 * a1) * s_[1]
+            + (a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3) * s_[2])
+        dvec = ca.Function("d", [qs, s_], [dv])
+        # ---- variables
+        T = SX.sym("T")
+        X = SX.sym("X", 7, N + 1)
+        Xm = SX.sym("Xm", 7, N)
+        Uk = SX.sym("U", 3, N + 1)
+        Um = SX.sym("Um", 3, N)
+        w = ca.vertcat(T, ca.vec(X), ca.vec(Xm), ca.vec(Uk), ca.vec(Um))
+        nx = int(w.shape[0])
+        self.nx = nx
+        off = 1
+        self.iX = off + np.arange(7 * (N + 1)).reshape(N + 1, 7); off += 7 * (N + 1)
+        self.iXm = off + np.arange(7 * N).reshape(N, 7); off += 7 * N
+        self.iU = off + np.arange(3 * (N + 1)).reshape(N + 1, 3); off += 3 * (N + 1)
+        self.iUm = off + np.arange(3 * N).reshape(N, 3); off += 3 * N
+        # ---- constraints (layout recorded for the bounds and the multipliers)
+        g = []
+        self.layout = {}
+
+        def add(name, expr):
+            start = sum(int(e.numel()) for e in g)
+            g.append(ca.vec(expr))
+            self.layout[name] = (start, start + int(expr.numel()))
+        Jrep = ca.repmat(Jp, 1, N)
+        S_, H_ = D.map(N)(X[:, :N], Xm, X[:, 1:], Uk[:, :N], Um, Uk[:, 1:], T * mesh.T, Jrep)
+        add("simpson", S_)
+        add("hermite", H_)
+        qN = X[0:4, N]
+        if pointing:
+            e1, e2, tgt = tdat[0:3], tdat[3:6], tdat[6:9]
+            dN = dvec(qN, sb)
+            add("terminal", ca.vertcat(ca.dot(e1, dN), ca.dot(e2, dN)))
+            add("terminal_sign", ca.dot(tgt, dN))
+        else:
+            qf = tdat
+            # Im(qf* ⊗ q): linear in q, zero on the line through ±qf
+            r = ca.vertcat(qf[0] * qN[1] - qf[1] * qN[0] - qf[2] * qN[3] + qf[3] * qN[2],
+                           qf[0] * qN[2] - qf[2] * qN[0] - qf[3] * qN[1] + qf[1] * qN[3],
+                           qf[0] * qN[3] - qf[3] * qN[0] - qf[1] * qN[2] + qf[2] * qN[1])
+            add("terminal", r)
+        self.n_eq = self.layout["terminal"][1]
+        # torque bound between samples: Bernstein middle coefficient of each interval's
+        # quadratic control, b = 2 u_m - (u_k + u_k+1)/2 (see the module docstring)
+        Bm = 2.0 * Um - 0.5 * (Uk[:, :N] + Uk[:, 1:])
+        if math.isinf(p):
+            add("bernstein", Bm)
+        else:
+            v = SX.sym("v", 3)
+            if p == 2.0:
+                ball = ca.sumsqr(v / Up)
+            else:
+                z = v / Up
+                ball = ca.sum1((z * z + _P_SMOOTH_DELTA) ** (p / 2.0))
+            Ball = ca.Function("ball", [v, P], [ball])
+            allU = ca.horzcat(Uk, Um, Bm)
+            add("ball", Ball.map(allU.shape[1])(allU, ca.repmat(P, 1, allU.shape[1])))
+        # rate limit between samples: on each interval the scheme's rate is the cubic
+        # Hermite interpolant of (ω_k, ω̇_k, ω_k+1, ω̇_k+1), whose Bernstein coefficients are
+        # ω_k, ω_k + h ω̇_k / 3, ω_k+1 - h ω̇_k+1 / 3, ω_k+1: bounding the inner two (the outer
+        # ones are the node values, box-bounded) keeps the whole cubic within the limit
+        if rate:
+            hh = SX.sym("hh")
+            wd_k = f(xk, uk, J)[4:7]
+            wd_k1 = f(xk1, uk1, J)[4:7]
+            RB = ca.Function("rb", [xk, xk1, uk, uk1, hh, J],
+                             [ca.vertcat(xk[4:7] + hh / 3.0 * wd_k, xk1[4:7] - hh / 3.0 * wd_k1)])
+            add("rate_bernstein", RB.map(N)(X[:, :N], X[:, 1:], Uk[:, :N], Uk[:, 1:], T * mesh.T, Jrep))
+        # keep-out cones at interior nodes and all midpoints (the ends are fixed by the
+        # start and the target and may sit on a boundary); back-off δ ramps up over the
+        # first and last two intervals
+        ramp_n = np.array([min(1.0, min(k, N - k) / 2.0) for k in range(1, N)])
+        ramp_m = np.array([min(1.0, min(k + 0.5, N - k - 0.5) / 2.0) for k in range(N)])
+        ramp = np.concatenate([ramp_n, ramp_m])
+        Qc = ca.horzcat(X[0:4, 1:N], Xm[0:4, :])
+        qc = SX.sym("qc", 4)
+        ax = SX.sym("ax", 3)
+        al = SX.sym("al")
+        rw = SX.sym("rw")
+        cexpr = ca.dot(ax, dvec(qc, sb)) - ca.cos(al + rw * delta) * ca.sumsqr(qc)
+        Cf = ca.Function("cone", [qc, ax, al, rw, P], [cexpr]).map(2 * N - 1)
+        for c in range(n_cones):
+            add(f"cone{c}", Cf(Qc, ca.repmat(cone_p[c][0:3], 1, 2 * N - 1),
+                              ca.repmat(cone_p[c][3], 1, 2 * N - 1), ca.DM(ramp).T,
+                              ca.repmat(P, 1, 2 * N - 1)))
+        gall = ca.vertcat(*g)
+        self.ng = int(gall.shape[0])
+        self.geval = ca.Function("g", [w, P], [gall])
+        self.deadline = _Deadline(ca, nx, self.ng, self.n_par)
+        opts = {"ipopt.tol": tol, "ipopt.max_iter": int(max_iter), "ipopt.print_level": 5 if verbose else 0,
+                "print_time": bool(verbose), "ipopt.sb": "yes", "ipopt.constr_viol_tol": min(1e-8, tol),
+                "ipopt.mu_strategy": "adaptive", "iteration_callback": self.deadline.cb}
+        self.solver = ca.nlpsol("colloc", "ipopt", {"x": w, "p": P, "f": T, "g": gall}, opts)
+
+
+def _template(N, pointing, n_cones, p, rate, tol, max_iter, verbose) -> _Template:
+    key = (N, pointing, n_cones, p, rate, tol, max_iter, verbose)
+    tpl = _CACHE.get(key)
+    if tpl is None:
+        tpl = _Template(N, pointing, n_cones, p, rate, tol, max_iter, verbose)
+        _CACHE[key] = tpl
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    else:
+        _CACHE.move_to_end(key)
+    return tpl
+
+
+@dataclass
+class _Run:
+    T: float
+    w: np.ndarray
+    lam_g: np.ndarray
+    status: str
+    success: bool
+    nit: int
+    nfev: int
+    nlp: "_NLP"
+    source: str
+    delta: float = 0.0
+
+
+class _NLP:
+    """A template bound to one problem and mesh: parameters and bounds."""
+
+    def __init__(self, sc: _Scaled, mesh, tol, max_iter, verbose):
+        prob = sc.prob
+        N = int(mesh.shape[0])
+        self.sc, self.N, self.mesh = sc, N, np.asarray(mesh, float)
+        tpl = _template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tol),
+                        int(max_iter), bool(verbose))
+        self.tpl = tpl
+        self.nx = tpl.nx
+        self.iX, self.iXm, self.iU, self.iUm = tpl.iX, tpl.iXm, tpl.iU, tpl.iUm
+        # ---- parameters
+        P = np.zeros(tpl.n_par)
+        ip = tpl.i_par
+        P[ip["J"]:ip["J"] + 3] = sc.J
+        P[ip["U"]:ip["U"] + 3] = sc.U
+        if prob.is_pointing:
+            e1, e2 = _perp_pair(prob.sensor_target)
+            P[ip["tdat"]:ip["tdat"] + 9] = np.concatenate([e1, e2, prob.sensor_target])
+        else:
+            P[ip["tdat"]:ip["tdat"] + 4] = prob.qf
+        P[ip["sb"]:ip["sb"] + 3] = prob.sensor_axis
+        for c, cone in enumerate(prob.cones):
+            P[ip["cones"] + 4 * c:ip["cones"] + 4 * c + 3] = cone.axis
+            P[ip["cones"] + 4 * c + 3] = cone.half_angle
+        P[ip["mesh"]:ip["mesh"] + N] = self.mesh
+        self.P = P
+        # ---- bounds
+        lbx = np.full(tpl.nx, -np.inf)
+        ubx = np.full(tpl.nx, np.inf)
+        lbx[0] = 1e-6
+        for I in (self.iX, self.iXm):
+            lbx[I[:, 0:4]] = -1.5
+            ubx[I[:, 0:4]] = 1.5
+            if sc.rate is not None:
+                lbx[I[:, 4:7]] = -sc.rate
+                ubx[I[:, 4:7]] = sc.rate
+        # p-norm: the ball constraint bounds the controls; the boxes just keep them finite
+        ub_u = sc.U if math.isinf(sc.p) else 1.01 * sc.U
+        for I in (self.iU, self.iUm):
+            lbx[I] = -ub_u
+            ubx[I] = ub_u
+        lbx[self.iX[0]] = sc.x0
+        ubx[self.iX[0]] = sc.x0
+        lbx[self.iX[N, 4:7]] = sc.wf
+        ubx[self.iX[N, 4:7]] = sc.wf
+        self.lbx, self.ubx = lbx, ubx
+        lbg = np.full(tpl.ng, -np.inf)
+        ubg = np.zeros(tpl.ng)
+        lay = tpl.layout
+        for name in ("simpson", "hermite", "terminal"):
+            a, b = lay[name]
+            lbg[a:b] = 0.0
+        if "terminal_sign" in lay:
+            a, b = lay["terminal_sign"]
+            lbg[a:b] = 0.0
+            ubg[a:b] = np.inf
+        if "bernstein" in lay:
+            a, b = lay["bernstein"]
+            lbg[a:b] = -np.tile(sc.U, N)
+            ubg[a:b] = np.tile(sc.U, N)
+        if "rate_bernstein" in lay:
+            a, b = lay["rate_bernstein"]
+            lbg[a:b] = -np.tile(sc.rate, 2 * N)
+            ubg[a:b] = np.tile(sc.rate, 2 * N)
+        if "ball" in lay:
+            a, b = lay["ball"]
+            ubg[a:b] = 1.0
+        self.lbg, self.ubg = lbg, ubg
+        a, b = lay["simpson"]
+        self.ig_simpson = np.arange(a, b).reshape(N, 7)
+        a, b = lay["hermite"]
+        self.ig_hermite = np.arange(a, b).reshape(N, 7)
+        self.n_eq = tpl.n_eq
+
+    def params(self, delta):
+        P = self.P.copy()
+        P[self.tpl.i_par["delta"]] = delta
+        return P
+
+    def solve(self, w0, deadline, source, delta=0.0) -> _Run:
+        tpl = self.tpl
+        tpl.deadline.at = deadline
+        r = tpl.solver(x0=w0, p=self.params(delta), lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        st = tpl.solver.stats()
+        w = np.asarray(r["x"]).ravel()
+        status = str(st.get("return_status", "unknown"))
+        if status == "User_Requested_Stop" and time.perf_counter() > deadline:
+            status = "Maximum_WallTime_Exceeded"
+        nit = int(st.get("iter_count", 0))
+        nfev = int(st.get("n_call_nlp_g", nit + 1))
+        return _Run(float(w[0]), w, np.asarray(r["lam_g"]).ravel(), status,
+                    bool(st.get("success", False)) and status == "Solve_Succeeded", nit, nfev, self, source,
+                    delta)
+
+    def g(self, w, delta=0.0):
+        return np.asarray(self.tpl.geval(w, self.params(delta))).ravel()
+
+    # ---- packing
+    def pack(self, T, X, Xm, U, Um):
+        w = np.empty(self.nx)
+        w[0] = T
+        w[self.iX] = X
+        w[self.iXm] = Xm
+        w[self.iU] = U
+        w[self.iUm] = Um
+        return w
+
+    def unpack(self, w):
+        w = np.asarray(w, dtype=float).ravel()
+        return float(w[0]), w[self.iX], w[self.iXm], w[self.iU], w[self.iUm]
+
+    def times(self, T):
+        """Node and midpoint times (nondimensional)."""
+        s = np.concatenate([[0.0], np.cumsum(self.mesh)])
+        s[-1] = 1.0
+        return s * T, 0.5 * (s[:-1] + s[1:]) * T
+
+
+# ----------------------------------------------------------------------------- guesses
+@dataclass
+class _TrajGuess:
+    """A guess as functions of time (nondimensional); sampled onto any grid."""
+    T: float
+    t: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    u: np.ndarray
+    source: str
+
+    def sample(self, nlp: _NLP):
+        tk, tm = nlp.times(1.0)
+        tk = tk * self.T
+        tm = tm * self.T
+
+        def interp(arr, tt):
+            return np.stack([np.interp(tt, self.t, arr[:, i]) for i in range(arr.shape[1])], axis=-1)
+        X = np.hstack([interp(self.q, tk), interp(self.w, tk)])
+        Xm = np.hstack([interp(self.q, tm), interp(self.w, tm)])
+        X[0] = nlp.sc.x0
+        U = interp(self.u, tk)
+        Um = interp(self.u, tm)
+        return nlp.pack(self.T, X, Xm, U, Um)
+
+
+def _trapezoid_path(sc: _Scaled, q_start, q_end, source):
+    """Rest-to-rest rotation about the eigenaxis with the largest constant acceleration the
+    bound allows at rest (gyroscopic torque ignored), coasting at the rate limit if any."""
+    from .guesses import eigenaxis_acceleration
+    d = np.asarray(qmul(np.array([q_start[0], -q_start[1], -q_start[2], -q_start[3]]), q_end))
+    if d[0] < 0:
+        d = -d
+    v = float(np.linalg.norm(d[1:]))
+    n = d[1:] / v if v > 1e-15 else np.array([1.0, 0.0, 0.0])
+    th = 2.0 * math.atan2(v, d[0])
+    acc = eigenaxis_acceleration(sc.J, sc.U, sc.p, n)
+    wmax = math.inf if sc.rate is None else float(np.min(sc.rate[np.abs(n) > 1e-12] / np.abs(n[np.abs(n) > 1e-12])))
+    t1 = math.sqrt(max(th, 1e-12) / acc)
+    if acc * t1 > wmax:      # trapezoid: accelerate to wmax, coast, decelerate
+        t1 = wmax / acc
+        tc = (th - acc * t1 * t1) / wmax
+    else:
+        tc = 0.0
+    T = 2 * t1 + tc
+    t = np.linspace(0.0, T, 201)
+    a1, a2 = t1, t1 + tc
+    rate = np.where(t < a1, acc * t, np.where(t < a2, acc * t1, np.maximum(0.0, acc * (T - t))))
+    theta = np.where(t < a1, 0.5 * acc * t * t,
+                     np.where(t < a2, 0.5 * acc * t1 * t1 + acc * t1 * (t - a1),
+                              th - 0.5 * acc * np.maximum(0.0, T - t) ** 2))
+    ua = np.where(t < a1, acc, np.where(t < a2, 0.0, -acc))
+    q = _qexp_body(q_start, n, theta)
+    return _TrajGuess(T, t, q, rate[:, None] * n[None, :], ua[:, None] * (sc.J * n)[None, :], source)
+
+
+def _eigen_path(sc: _Scaled, q_start, q_end, source):
+    """Rest-to-rest eigenaxis slew q_start → q_end within the bounds, nondimensional: the
+    fastest one (``solvers.eigenaxis_slew``) for a per-axis bound; for a p-norm bound,
+    whose ``eigenaxis_slew`` is slow (a scalar minimisation per grid point), the
+    constant-acceleration trapezoid."""
+    from .eigenaxis import eigenaxis_slew
+    prob = sc.prob
+    if not math.isinf(sc.p):
+        return _trapezoid_path(sc, q_start, q_end, source)
+    sub = SlewProblem(prob.inertia, prob.torque_max, prob.torque_norm, q0=q_start, qf=q_end,
+                      rate_max=prob.rate_max)
+    es = eigenaxis_slew(sub, n_grid=400)
+    if es.tf <= 0.0:
+        t = np.array([0.0, 1.0])
+        q = np.array([q_start, q_start])
+        return _TrajGuess(1.0, t, q, np.zeros((2, 3)), np.zeros((2, 3)), source)
+    t = es.t / sc.tau
+    q = _qexp_body(q_start, es.axis, es.theta)
+    w = es.rate[:, None] * es.axis[None, :] * sc.tau
+    u = es.u / sc.umax0
+    return _TrajGuess(float(t[-1]), t, q, w, u, source)
+
+
+def _concat(a: _TrajGuess, b: _TrajGuess, source):
+    t = np.concatenate([a.t, a.T + b.t[1:]])
+    return _TrajGuess(a.T + b.T, t, np.vstack([a.q, b.q[1:]]), np.vstack([a.w, b.w[1:]]),
+                      np.vstack([a.u, b.u[1:]]), source)
+
+
+def _with_rates(sc: _Scaled, g: _TrajGuess):
+    """Blend the boundary rates into a rest-to-rest path guess (a guess only)."""
+    if not (np.any(sc.x0[4:7]) or np.any(sc.wf)):
+        return g
+    T = g.T
+    dw = sc.wf - sc.x0[4:7]
+    # time to change the rate at the available acceleration, as a floor on T
+    T_rate = float(np.max(np.abs(dw) * sc.J / sc.U))
+    if T < T_rate:
+        scale = T_rate / max(T, 1e-12)
+        g = _TrajGuess(T_rate, g.t * scale, g.q, g.w / scale, g.u / scale ** 2, g.source)
+        T = T_rate
+    s = g.t / T
+    w = g.w + (1.0 - s)[:, None] * sc.x0[4:7][None, :] + s[:, None] * sc.wf[None, :]
+    u = g.u + (dw * sc.J / T)[None, :]
+    return _TrajGuess(T, g.t, g.q, w, np.clip(u, -sc.U, sc.U), g.source + "+rates")
+
+
+def _final_attitude_guess(prob, q_from):
+    """Target attitude for a guess: ``qf``, or the shortest sensor rotation from ``q_from``."""
+    if prob.qf is not None:
+        qf = prob.qf.copy()
+        if float(qf @ q_from) < 0:
+            qf = -qf
+        return qf
+    s = np.asarray(qrotate(q_from, prob.sensor_axis))
+    r = np.asarray(qfrom_two_vectors(s, prob.sensor_target))
+    return np.asarray(qmul(r, q_from))
+
+
+def _path_min_margin(prob, q):
+    m = math.inf
+    for c in prob.cones:
+        d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in q])
+        ang = np.arccos(np.clip(d @ c.axis, -1, 1)) - c.half_angle
+        m = min(m, float(ang.min()))
+    return m
+
+
+def _detour_guesses(sc: _Scaled, straight: _TrajGuess, clearance=math.radians(5.0)):
+    """Around the worst-crossed cone, through a way-point just outside it (both sides)."""
+    prob = sc.prob
+    d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in straight.q])
+    worst, wk, wc = math.inf, 0, None
+    for c in prob.cones:
+        ang = np.arccos(np.clip(d @ c.axis, -1, 1)) - c.half_angle
+        k = int(np.argmin(ang))
+        if ang[k] < worst:
+            worst, wk, wc = float(ang[k]), k, c
+    if wc is None or worst >= 0.0:
+        return []
+    a = wc.axis
+    s0, s1 = prob.start_direction, prob.target_direction
+    # the deepest point of the straight path, pushed away from the cone axis (or, if it
+    # passes through the axis, sideways), and the opposite side of the cone
+    pm = d[wk] - (d[wk] @ a) * a
+    if np.linalg.norm(pm) < 1e-9:
+        pm = np.cross(a, s1 - s0)
+    pm /= np.linalg.norm(pm)
+    out = []
+    for side in (1.0, -1.0):
+        direction = pm if side > 0 else -pm
+        beta = wc.half_angle + clearance
+        wpt = math.cos(beta) * a + math.sin(beta) * direction
+        wpt /= np.linalg.norm(wpt)
+        qa = np.asarray(qmul(qfrom_two_vectors(s0, wpt), prob.q0))
+        leg1 = _eigen_path(sc, prob.q0, qa, "detour")
+        qb = _final_attitude_guess(prob, qa)
+        leg2 = _eigen_path(sc, qa, qb, "detour")
+        out.append(_concat(leg1, leg2, f"detour({'+' if side > 0 else '-'})"))
+    return out
+
+
+def _propagate_guess(sc: _Scaled, guess: Guess, n=400):
+    """A ``solvers.Guess`` as a trajectory: bang-bang from its switch times, else the
+    extremal of its costates (PMP control law), by fixed-step RK4."""
+    from .core import attitude_flow as af
+    T = guess.tf / sc.tau
+    prob = sc.prob
+    t = np.linspace(0.0, T, n + 1)
+    h = T / n
+    if guess.switch_times is not None and guess.u_first is not None:
+        sw = [np.asarray(s) / sc.tau for s in guess.switch_times]
+        u0 = np.where(guess.u_first == 0, 1.0, guess.u_first)
+
+        def uf(tt, y):
+            flips = np.array([np.searchsorted(sw[i], tt, side="right") for i in range(3)])
+            return sc.U * u0 * np.where(flips % 2 == 0, 1.0, -1.0)
+        src = "guess(switch times)"
+    else:
+        mode = af.MODE_BANG if math.isinf(sc.p) else af.MODE_PNORM
+        pp = 0.0 if math.isinf(sc.p) else sc.p
+
+        def uf(tt, y):
+            if mode == af.MODE_BANG:
+                S = y[11:14] / sc.J
+                return -sc.U * np.where(S >= 0, 1.0, -1.0)
+            return af.control(y, sc.J, sc.U, mode, pp, 1e-2, np.ones(3))[0]
+        src = "guess(costates)"
+    y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2])
+    Y = np.empty((n + 1, 14))
+    Uu = np.empty((n + 1, 3))
+    Y[0] = y
+    for k in range(n):
+        tt = t[k]
+        uk = uf(tt, y)
+        Uu[k] = uk
+        k1 = af.ext_rhs(y, uk, sc.J)
+        k2 = af.ext_rhs(y + 0.5 * h * k1, uf(tt + 0.5 * h, y + 0.5 * h * k1), sc.J)
+        k3 = af.ext_rhs(y + 0.5 * h * k2, uf(tt + 0.5 * h, y + 0.5 * h * k2), sc.J)
+        k4 = af.ext_rhs(y + h * k3, uf(tt + h, y + h * k3), sc.J)
+        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        y[0:4] /= np.linalg.norm(y[0:4])
+        Y[k + 1] = y
+    Uu[n] = uf(t[n], y)
+    return _TrajGuess(T, t, Y[:, 0:4], Y[:, 4:7], Uu, src)
+
+
+def _solution_guess(sc: _Scaled, sol: SlewSolution):
+    if sol.t is None or len(sol.t) < 2 or not math.isfinite(sol.tf):
+        raise ValueError("guess: the given SlewSolution has no trajectory to start from")
+    t = np.asarray(sol.t) / sc.tau
+    return _TrajGuess(float(sol.tf) / sc.tau, t, np.asarray(sol.q), np.asarray(sol.omega) * sc.tau,
+                      np.asarray(sol.u) / sc.umax0, f"solution({sol.method or 'given'})")
+
+
+def _perturbed(sc: _Scaled, g: _TrajGuess, rng, amp=0.2):
+    """``g`` with a smooth random torque and rate perturbation (breaks the symmetry of an
+    eigenaxis guess about a principal axis, which IPOPT would otherwise never leave)."""
+    s = g.t / g.T
+    du = np.zeros_like(g.u)
+    for i in range(3):
+        c = rng.normal(size=3)
+        du[:, i] = sum(c[j] * np.sin((j + 1) * np.pi * s) for j in range(3))
+    du *= amp * sc.U / max(1.0, float(np.max(np.abs(du))))
+    # rates: the integral of the torque perturbation, brought back to zero at the end
+    dt = np.diff(g.t)
+    dw = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (du[1:] + du[:-1]) * dt[:, None], axis=0)]) / sc.J
+    dw -= s[:, None] * dw[-1][None, :]
+    u = g.u + du
+    if math.isinf(sc.p):
+        u = np.clip(u, -sc.U, sc.U)
+    return _TrajGuess(g.T, g.t, g.q, g.w + dw, u, g.source + "+perturbed")
+
+
+def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0) -> List[_TrajGuess]:
+    """The starts: the given guess or the eigenaxis guess, seeded perturbations of it up to
+    ``n_starts`` (default 4 without a guess, 1 with one), then cone detours when the
+    eigenaxis path crosses a cone."""
+    prob = sc.prob
+    if isinstance(guess, SlewSolution):
+        base, n_default = _solution_guess(sc, guess), 1
+    elif isinstance(guess, Guess):
+        base, n_default = _propagate_guess(sc, guess), 1
+    else:
+        qf = _final_attitude_guess(prob, prob.q0)
+        base, n_default = _with_rates(sc, _eigen_path(sc, prob.q0, qf, "eigenaxis")), 4
+    n = n_default if n_starts is None else int(n_starts)
+    out = [base]
+    rng = np.random.default_rng(seed)
+    amps = (0.2, 0.5)
+    while len(out) < n:
+        out.append(_perturbed(sc, base, rng, amps[(len(out) - 1) % 2]))
+    if guess is None and prob.cones and _path_min_margin(prob, base.q) < 0.0:
+        out += [_with_rates(sc, g) for g in _detour_guesses(sc, base)]
+        if _through_a_cone_axis(prob, base.q) and len(out) > 1:
+            # the straight path runs (nearly) through a cone's axis: which way round is a
+            # tie that holds IPOPT (measured: 200+ iterations without convergence); the
+            # perturbed copies and the detours break it
+            out = out[1:]
+    return out
+
+
+def _through_a_cone_axis(prob, q):
+    d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in q])
+    for c in prob.cones:
+        if float(np.min(np.arccos(np.clip(d @ c.axis, -1, 1)))) < 0.25 * c.half_angle:
+            return True
+    return False
+
+
+# ----------------------------------------------------------------------------- post-processing
+def _interp_control(U, Um, tk, sc: _Scaled):
+    """The collocation control model, ``u(t)``: on each interval the quadratic through the
+    node, midpoint and node controls. The Bernstein constraint keeps it within the bound;
+    it is clipped anyway (by at most IPOPT's bound relaxation, ~1e-8)."""
+    per_axis = math.isinf(sc.p)
+
+    def clip(v):
+        if per_axis:
+            return np.clip(v, -sc.U, sc.U)
+        r = np.abs(v / sc.U)
+        n = np.sum(r ** sc.p, axis=-1) ** (1.0 / sc.p)
+        scale = np.where(n > 1.0, 1.0 / np.where(n > 0, n, 1.0), 1.0)
+        return v * scale[..., None]
+
+    def u_of(t):
+        t = np.asarray(t, dtype=float)
+        scalar = t.ndim == 0
+        tt = np.atleast_1d(t)
+        k = np.clip(np.searchsorted(tk, tt, side="right") - 1, 0, len(tk) - 2)
+        s = (tt - tk[k]) / (tk[k + 1] - tk[k])
+        l0 = 2.0 * (s - 0.5) * (s - 1.0)
+        l1 = -4.0 * s * (s - 1.0)
+        l2 = 2.0 * s * (s - 0.5)
+        v = clip(l0[:, None] * U[k] + l1[:, None] * Um[k] + l2[:, None] * U[k + 1])
+        return v[0] if scalar else v
+    return u_of
+
+
+@dataclass
+class _Replay:
+    t: Optional[np.ndarray]
+    x: Optional[np.ndarray]
+    nfev: int
+    message: str
+    u_of: object
+
+
+def _replay(sc: _Scaled, run: _Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
+    """Independent re-propagation of the interpolated control from the start state,
+    interval by interval (the control is smooth inside each), scipy DOP853."""
+    from scipy.integrate import solve_ivp
+    T, X, Xm, U, Um = run.nlp.unpack(run.w)
+    tk, _ = run.nlp.times(T)
+    u_of = _interp_control(U, Um, tk, sc)
+    J = sc.J
+    x = sc.x0.copy()
+    ts, xs = [np.array([0.0])], [x[None, :].copy()]
+    nf = 0
+    for k in range(len(tk) - 1):
+        a, b = tk[k], tk[k + 1]
+        Uk, Umk, Uk1 = U[k], Um[k], U[k + 1]
+
+        def rhs(t, y, a=a, b=b, Uk=Uk, Umk=Umk, Uk1=Uk1):
+            s = (t - a) / (b - a)
+            u = 2.0 * (s - 0.5) * (s - 1.0) * Uk - 4.0 * s * (s - 1.0) * Umk + 2.0 * s * (s - 0.5) * Uk1
+            if math.isinf(sc.p):
+                u = np.minimum(np.maximum(u, -sc.U), sc.U)
+            else:
+                n = float(np.sum(np.abs(u / sc.U) ** sc.p)) ** (1.0 / sc.p)
+                if n > 1.0:
+                    u = u / n
+            return state_rhs(y, u, J)
+        sol = solve_ivp(rhs, (a, b), x, method="DOP853", rtol=1e-10, atol=1e-12, dense_output=True)
+        nf += int(sol.nfev)
+        if not sol.success:
+            return _Replay(None, None, nf, str(sol.message), u_of)
+        tt = np.linspace(a, b, samples + 1)[1:]
+        ts.append(tt)
+        xs.append(sol.sol(tt).T)
+        x = sol.y[:, -1].copy()
+    return _Replay(np.concatenate(ts), np.vstack(xs), nf, "", u_of)
+
+
+def _check(value, tol, passed):
+    return {"value": float(value), "tol": float(tol), "passed": bool(passed)}
+
+
+def _margins(prob, q):
+    """Smallest clearance margin (rad) over the cones, for each row of ``q``."""
+    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
+    d = np.array([qrotate(qi, prob.sensor_axis) for qi in qn])
+    m = np.full(q.shape[0], np.inf)
+    for c in prob.cones:
+        cross = np.linalg.norm(np.cross(d, c.axis), axis=1)
+        m = np.minimum(m, np.arctan2(cross, d @ c.axis) - c.half_angle)
+    return m
+
+
+def _switches(t, u, U):
+    """Approximate switch times per axis and first-arc signs from sampled torques: zero
+    crossings between clearly saturated samples (``|u_i| ≥ 0.5 u_max,i``)."""
+    sw, first = [], np.zeros(3)
+    for i in range(3):
+        v = u[:, i] / U[i]
+        sat = np.nonzero(np.abs(v) >= 0.5)[0]
+        if sat.size == 0:
+            sw.append(np.zeros(0))
+            first[i] = float(np.sign(v[0])) if v[0] != 0 else 1.0
+            continue
+        first[i] = float(np.sign(v[sat[0]]))
+        times = []
+        for a, b in zip(sat[:-1], sat[1:]):
+            if np.sign(v[a]) != np.sign(v[b]):
+                seg = v[a:b + 1]
+                j = a + int(np.nonzero(np.sign(seg[:-1]) != np.sign(seg[1:]))[0][-1])
+                if v[j + 1] == v[j]:
+                    times.append(0.5 * (t[j] + t[j + 1]))
+                else:
+                    times.append(t[j] + (t[j + 1] - t[j]) * v[j] / (v[j] - v[j + 1]))
+        sw.append(np.array(times))
+    return sw, first
+
+
+def _costates(run: _Run):
+    """Covector mapping: costates (nondimensional, CONVENTIONS sign, unscaled) at the
+    nodes and midpoints, from the defect multipliers."""
+    nlp = run.nlp
+    T, X, Xm, U, Um = nlp.unpack(run.w)
+    N = nlp.N
+    nu = run.lam_g[nlp.ig_simpson]
+    mu = run.lam_g[nlp.ig_hermite]
+    h = T * nlp.mesh
+    Jrep = np.tile(nlp.sc.J[:, None], (1, N))
+    dk, dk1 = nlp.tpl.dL(X[:N].T, Xm.T, X[1:].T, U[:N].T, Um.T, U[1:].T, h[None, :], Jrep, nu.T, mu.T)
+    R = np.asarray(dk).T        # ∂/∂x_k of interval k's terms  (k = 0..N-1)
+    L = np.asarray(dk1).T       # ∂/∂x_k+1 of interval k's terms
+    lam = np.empty((N + 1, 7))
+    lam[0] = R[0]
+    lam[N] = -L[N - 1]
+    lam[1:N] = 0.5 * (R[1:N] - L[0:N - 1])
+    return lam, 0.5 * (lam[:-1] + lam[1:])
+
+
+def _project_and_scale(sc, xx, uu, lam):
+    """Gauge ``λq ⊥ q`` at every sample, then the scale ``H ≡ -1`` (by the median);
+    returns the costates and ``max |H + 1|`` after scaling."""
+    lam = lam.copy()
+    q = xx[:, 0:4]
+    lam[:, 0:4] -= (np.sum(lam[:, 0:4] * q, axis=1) / np.sum(q * q, axis=1))[:, None] * q
+    H = np.array([float(lam[k] @ state_rhs(xx[k], uu[k], sc.J)) for k in range(xx.shape[0])])
+    Hm = float(np.median(H))
+    if Hm == 0.0 or not math.isfinite(Hm):
+        return lam, math.inf
+    c = -1.0 / Hm
+    return lam * c, float(np.max(np.abs(H * c + 1.0)))
+
+
+def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
+    """SlewSolution fields and the verification checks of a solved run."""
+    prob = sc.prob
+    nlp = run.nlp
+    N = nlp.N
+    T, X, Xm, U, Um = nlp.unpack(run.w)
+    tk, tm = nlp.times(T)
+    tau = sc.tau
+    n_all = 2 * N + 1
+    t_all = np.empty(n_all)
+    t_all[0::2], t_all[1::2] = tk, tm
+    x_all = np.empty((n_all, 7))
+    x_all[0::2], x_all[1::2] = X, Xm
+    u_all = np.empty((n_all, 3))
+    u_all[0::2], u_all[1::2] = U, Um
+    norms = np.linalg.norm(x_all[:, 0:4], axis=1)
+    drift = float(np.max(np.abs(norms - 1.0)))
+    lam, lam_m = _costates(run)
+    lam_all = np.empty((n_all, 7))
+    lam_all[0::2], lam_all[1::2] = lam, lam_m
+    lam_all, H_spread = _project_and_scale(sc, x_all, u_all, lam_all)
+    costate = np.hstack([lam_all[:, 0:4] * tau, lam_all[:, 4:7] * tau ** 2])
+    # ---- checks
+    checks = {}
+    scale2 = (60.0 / N) ** 2
+    tol_att = max(1e-6, tols["boundary_attitude_error"] * scale2)
+    tol_rate = max(1e-6, tols["boundary_rate_error"] * scale2)
+    if rep.x is None:
+        checks["propagation"] = _check(1.0, 0.0, False)
+        att = rate = math.inf
+    else:
+        xT = rep.x[-1]
+        qT = xT[0:4] / np.linalg.norm(xT[0:4])
+        if prob.qf is not None:
+            att = float(qerror_angle(qT, prob.qf))
+        else:
+            att = float(angle_between(np.asarray(qrotate(qT, prob.sensor_axis)), prob.sensor_target))
+        rate = float(np.linalg.norm(xT[4:7] - sc.wf))
+    checks["boundary_attitude_error"] = _check(att, tol_att, att <= tol_att)
+    checks["boundary_rate_error"] = _check(rate / tau, tol_rate / tau, rate <= tol_rate)
+    gval = nlp.g(run.w, run.delta)
+    max_def = float(np.max(np.abs(gval[:nlp.n_eq])))
+    checks["max_defect"] = _check(max_def, tols["max_defect"], max_def <= tols["max_defect"])
+    if prob.cones:
+        m = float(np.min(_margins(prob, x_all[:, 0:4])))
+        if rep.x is not None:
+            m = min(m, float(np.min(_margins(prob, rep.x[:, 0:4]))))
+        else:
+            m = -math.inf
+        checks["cone_clearance"] = _check(m, tols["cone_clearance"], m >= tols["cone_clearance"])
+    if prob.rate_max is not None:
+        wmax = np.max(np.abs(x_all[:, 4:7]), axis=0)
+        if rep.x is not None:
+            wmax = np.maximum(wmax, np.max(np.abs(rep.x[:, 4:7]), axis=0))
+        worst = float(np.max(wmax / sc.rate)) if rep.x is not None else math.inf
+        checks["rate_limit"] = _check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
+    if math.isinf(sc.p):
+        tb = float(np.max(np.abs(u_all) / sc.U))
+    else:
+        tb = float(np.max(np.sum(np.abs(u_all / sc.U) ** sc.p, axis=1) ** (1.0 / sc.p)))
+    checks["torque_bound"] = _check(tb, tols["torque_bound"], tb <= tols["torque_bound"])
+    checks["quaternion_norm_drift"] = _check(drift, tols["quaternion_norm_drift"],
+                                             drift <= tols["quaternion_norm_drift"])
+    # diagnostic only (never fails): how far the costate estimate is from H ≡ -1
+    checks["hamiltonian_spread"] = _check(H_spread, math.inf, True)
+    # ---- tf tolerance: the change from the coarse grid, or else the boundary miss of the
+    # re-propagation as a relative time (an order of magnitude only)
+    if math.isfinite(Tc):
+        tf_tol = abs(T - Tc) * tau
+    else:
+        tf_tol = T * tau * max(att, rate) if math.isfinite(att) else math.inf
+    tf_tol = max(tf_tol, T * tau * 1e-10)
+    if math.isinf(sc.p):
+        sw, first = _switches(t_all, u_all, sc.U)
+        sw = [s * tau for s in sw]
+    else:
+        sw = [np.zeros(0)] * 3
+        first = np.sign(u_all[0])
+    u_of = rep.u_of
+
+    def control(tq):
+        return u_of(np.asarray(tq, dtype=float) / tau) * sc.umax0
+    return dict(tf=T * tau, tf_tol=tf_tol, costate0=costate[0].copy(), switch_times=sw, u_first=first,
+                t=t_all * tau, q=x_all[:, 0:4] / norms[:, None], omega=x_all[:, 4:7] / tau,
+                u=u_all * sc.umax0, costate=costate, _control=control, guess=run.source,
+                verification=checks), checks
+
+
+# ----------------------------------------------------------------------------- the solver
+def _regrid(run: _Run, nlp_new: _NLP):
+    """Interpolate a solved run onto another mesh (a warm start)."""
+    T, X, Xm, U, Um = run.nlp.unpack(run.w)
+    tk, tm = run.nlp.times(T)
+    t = np.concatenate([tk, tm])
+    o = np.argsort(t, kind="stable")
+    xs = np.vstack([X, Xm])[o]
+    us = np.vstack([U, Um])[o]
+    return _TrajGuess(T, t[o], xs[:, 0:4], xs[:, 4:7], us, run.source).sample(nlp_new)
+
+
+def _coarse_mesh(mesh, Nc):
+    """A mesh of ``Nc`` intervals with the same end points (merging neighbours)."""
+    N = mesh.shape[0]
+    if N % Nc == 0:
+        return mesh.reshape(Nc, -1).sum(axis=1)
+    edges = np.concatenate([[0.0], np.cumsum(mesh)])
+    sel = np.round(np.linspace(0, N, Nc + 1)).astype(int)
+    return np.diff(edges[sel])
+
+
+def _interior_clearance(prob, rep: _Replay, run: _Run):
+    """Smallest margin of the re-propagated path away from the first and last interval
+    (there the start and the target fix the path; a back-off cannot help)."""
+    tk, _ = run.nlp.times(run.T)
+    sel = (rep.t >= tk[1]) & (rep.t <= tk[-2])
+    if not np.any(sel):
+        return math.inf
+    return float(np.min(_margins(prob, rep.x[sel, 0:4])))
+
+
+def solve_collocation(problem, *, n_intervals: int = 60, transcription: str = "hermite-simpson",
+                      guess=None, tol: float = 1e-8, max_iter: int = 3000, time_budget: float = 60.0,
+                      verbose: bool = False, n_starts: Optional[int] = None, seed: int = 0,
+                      coarse: bool = True, mesh=None, tols: Optional[dict] = None) -> SlewSolution:
+    """Time-optimal slew of ``problem`` by Hermite–Simpson direct collocation and IPOPT.
+
+    Parameters
+    ----------
+    problem : SlewProblem or dict
+    n_intervals : int ≥ 2
+        Collocation intervals ``N`` (``N + 1`` nodes and ``N`` midpoints).
+    transcription : ``"hermite-simpson"``
+        The only transcription implemented (separated form; module docstring).
+    guess : None, SlewSolution or solvers.Guess
+        None: the eigenaxis slew (and its perturbations, and cone detours when it crosses
+        a cone). A ``SlewSolution``: its dense samples. A ``Guess``: propagated (bang-bang
+        from its switch times, else the extremal of its costates).
+    tol : float
+        IPOPT ``tol`` (``constr_viol_tol`` is ``min(tol, 1e-8)``).
+    max_iter : int
+        IPOPT iteration limit of each solve.
+    time_budget : float
+        Seconds for the whole call; IPOPT is stopped at the deadline.
+    verbose : bool
+        IPOPT's iteration output.
+    n_starts : int, optional
+        Initial guesses tried (default 4 without a guess: the eigenaxis guess and three
+        seeded smooth perturbations of it, which break the symmetry that holds IPOPT on the
+        eigenaxis slew about a principal axis; 1 with a guess). Cone detours come on top.
+    seed : int
+        Seed of the perturbations.
+    coarse : bool
+        Solve every start on ``max(2, N // 2)`` intervals first, refine the best (and a
+        second one within 0.2 % of it) on ``N``; ``tf_tol = |tf(N) - tf(N/2)|``. Without it
+        every start is solved on ``N`` and ``tf_tol`` is a rough estimate from the boundary
+        miss of the re-propagation.
+    mesh : optional, ``N`` positive interval fractions (normalised to sum 1). Uniform by default.
+    tols : dict, optional
+        Overrides of ``DEFAULT_TOLS`` (the verification tolerances).
+
+    Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
+    the fields, the checks and the statuses.
+    """
+    t_start = time.perf_counter()
+    prob = _as_problem(problem)
+    if isinstance(n_intervals, bool) or not isinstance(n_intervals, (int, np.integer)):
+        raise ValueError(f"n_intervals: expected an integer ≥ 2, got {n_intervals!r}")
+    if n_intervals < 2:
+        raise ValueError(f"n_intervals: must be at least 2, got {n_intervals}")
+    N = int(n_intervals)
+    if transcription not in TRANSCRIPTIONS:
+        raise ValueError(f"transcription: unknown transcription {transcription!r}; "
+                         f"choose one of {', '.join(TRANSCRIPTIONS)}")
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (math.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol: must be a positive number, got {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter: must be a positive integer, got {max_iter!r}")
+    if (isinstance(time_budget, bool) or not isinstance(time_budget, (int, float))
+            or not (time_budget > 0) or math.isnan(time_budget)):
+        raise ValueError(f"time_budget: must be a positive number of seconds, got {time_budget!r}")
+    if n_starts is not None and (isinstance(n_starts, bool) or not isinstance(n_starts, (int, np.integer))
+                                 or n_starts < 1):
+        raise ValueError(f"n_starts: must be a positive integer, got {n_starts!r}")
+    if guess is not None and not isinstance(guess, (SlewSolution, Guess)):
+        raise ValueError(f"guess: expected a SlewSolution, a solvers.Guess or None, got {type(guess).__name__}")
+    tols_all = dict(DEFAULT_TOLS)
+    if tols:
+        unknown = set(tols) - set(DEFAULT_TOLS)
+        if unknown:
+            raise ValueError(f"tols: unknown check(s) {sorted(unknown)}; known: {sorted(DEFAULT_TOLS)}")
+        tols_all.update(tols)
+    if mesh is None:
+        mesh_arr = np.full(N, 1.0 / N)
+    else:
+        mesh_arr = np.asarray(mesh, dtype=float).ravel()
+        if mesh_arr.shape != (N,) or not np.all(np.isfinite(mesh_arr)) or np.any(mesh_arr <= 0):
+            raise ValueError(f"mesh: expected {N} positive interval fractions (one per interval)")
+        mesh_arr = mesh_arr / mesh_arr.sum()
+    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
+        raise ValueError(("qf" if prob.qf is not None else "sensor_target")
+                         + ": the target equals the start (zero slew at rest); nothing to solve")
+    if prob.cones and cones_block_every_path(prob):
+        raise ValueError(f"cones: the {len(prob.cones)} keep-out cone(s) separate the start and target "
+                         "sensor directions: every path crosses a cone (infeasible)")
+    sc = _Scaled.of(prob)
+    deadline = t_start + float(time_budget)
+    starts = initial_guesses(sc, guess, n_starts, seed)
+
+    nit = nfev = 0
+    failures = []
+    budget_hit = False
+    Nc = max(2, N // 2) if (coarse and N >= 4) else None
+    # ---- stage 1: every start (on the coarse grid when there is one)
+    nlp1 = _NLP(sc, _coarse_mesh(mesh_arr, Nc) if Nc else mesh_arr, max(tol, 1e-7) if Nc else tol,
+                min(max_iter, _COARSE_MAX_ITER) if Nc else max_iter, verbose)
+    stage1 = []
+    for g in starts:
+        if time.perf_counter() > deadline:
+            budget_hit = True
+            break
+        r = nlp1.solve(g.sample(nlp1), deadline, g.source)
+        nit += r.nit
+        nfev += r.nfev
+        stage1.append(r)
+        if not r.success:
+            failures.append(f"{g.source}{f' (N={Nc})' if Nc else ''}: {r.status}")
+            if r.status == "Maximum_WallTime_Exceeded":
+                budget_hit = True
+                break
+    conv1 = sorted([r for r in stage1 if r.success], key=lambda r: r.T)
+    coarse_tf = sorted({round(r.T * sc.tau, 6) for r in conv1})
+    # ---- stage 2: refine on N
+    finals = []      # (run, coarse T)
+    if Nc:
+        nlp = _NLP(sc, mesh_arr, tol, max_iter, verbose)
+        chosen = []
+        for r in conv1:
+            if r.T > conv1[0].T * (1 + 2e-3) or len(chosen) >= 2:
+                break
+            if any(abs(r.T - c.T) <= 1e-6 * c.T for c in chosen):
+                continue      # a mirror image of one already chosen
+            chosen.append(r)
+        if not chosen and stage1 and not budget_hit:
+            chosen = [None]   # nothing converged on the coarse grid: the first start on N
+        for rc in chosen:
+            if time.perf_counter() > deadline:
+                budget_hit = True
+                break
+            w0 = _regrid(rc, nlp) if rc is not None else starts[0].sample(nlp)
+            src = rc.source if rc is not None else starts[0].source
+            r = nlp.solve(w0, deadline, src)
+            nit += r.nit
+            nfev += r.nfev
+            if not r.success:
+                failures.append(f"{src} (N={N}): {r.status}")
+            finals.append((r, rc.T if rc is not None and r.success else math.nan))
+    else:
+        finals = [(r, math.nan) for r in stage1]
+    common = dict(method="collocation", problem=prob, n_candidates=len(stage1))
+    baseline = math.nan
+    if prob.is_rest_to_rest and prob.qf is not None:
+        from .eigenaxis import eigenaxis_slew
+        # (a p-norm eigenaxis slew costs a scalar minimisation per grid point: a coarser
+        # grid, whose answer is slower by ~1e-5 relative, i.e. a more lenient baseline)
+        baseline = eigenaxis_slew(prob, n_grid=1000 if math.isinf(sc.p) else 100).tf
+    common["baseline_tf"] = baseline
+    coarse_only = False
+    if not finals:
+        status = STATUS_BUDGET_EXHAUSTED if budget_hit else STATUS_NOT_CONVERGED
+        if not conv1:
+            return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} IPOPT: " + "; ".join(failures),
+                                nit=nit, nfev=nfev, wall_time=time.perf_counter() - t_start, **common)
+        # the budget ran out before the refinement: return the coarse answer, unverified
+        finals = [(conv1[0], math.nan)]
+        coarse_only = True
+    conv = [f for f in finals if f[0].success and not coarse_only]
+    best, Tc = min(conv, key=lambda f: f[0].T) if conv else finals[0]
+    # ---- stage 3: keep-out clearance between the collocation points. The constraint holds
+    # at nodes and midpoints; the path can sag into a cone between them. Re-solve with the
+    # cone half-angles enlarged by a back-off δ until the re-propagated path is clear.
+    best0 = best
+    rep = _replay(sc, best)
+    nfev += rep.nfev
+    if prob.cones and best.success and rep.x is not None:
+        for _ in range(4):
+            m = _interior_clearance(prob, rep, best)
+            if m >= 0.0 or time.perf_counter() > deadline:
+                break
+            delta = best.delta + 1.5 * (-m) + 1e-7
+            r = best.nlp.solve(best.w, deadline, best.source, delta=delta)
+            nit += r.nit
+            nfev += r.nfev
+            if not r.success:
+                failures.append(f"{best.source} (cone back-off {delta:.2g} rad): {r.status}")
+                break
+            best = r
+            rep = _replay(sc, best)
+            nfev += rep.nfev
+    if (math.isfinite(Tc) and best.success and abs(best.T - Tc) > 1e-2 * best.T
+            and time.perf_counter() < deadline):
+        # the refinement (or the back-off) left the coarse answer's basin: the coarse
+        # grid's answer in the new basin (warm start from the fine one) is the comparison
+        r2 = nlp1.solve(_regrid(best, nlp1), deadline, best.source, delta=best.delta)
+        nit += r2.nit
+        nfev += r2.nfev
+        Tc = r2.T if r2.success else math.nan
+    fields, checks = _post(sc, best, Tc, tols_all, rep)
+    route = f"Hermite–Simpson, N={best.nlp.N}"
+    if math.isfinite(Tc):
+        route += f", warm start from N={Nc} (best of {len(conv1)} converged start(s))"
+    if best.delta > 0:
+        route += f", cone back-off {best.delta:.3g} rad"
+    fields["route"] = route
+    cands = sorted({round(f[0].T * sc.tau, 9) for f in conv if f[0] is not best0}
+                   | ({round(best.T * sc.tau, 9)} if conv else set()))
+    wall = time.perf_counter() - t_start
+    kw = dict(nit=nit, nfev=nfev, wall_time=wall, candidates_tf=cands, **common, **fields)
+    if Nc and len(coarse_tf) > 1:
+        local = f" Local optima on the coarse grid (N={Nc}): {coarse_tf}."
+    else:
+        local = ""
+    if coarse_only:
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
+                            f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} Only the coarse grid (N={Nc}) was solved; "
+                            "its answer is returned, not refined on N. Runs: " + "; ".join(failures), **kw)
+    if not best.success:
+        status = STATUS_BUDGET_EXHAUSTED if budget_hit and not conv else STATUS_NOT_CONVERGED
+        msg = f"{STATUS_MESSAGES[status]} IPOPT: {best.status}."
+        if "Infeasible" in best.status and prob.cones:
+            msg += " The keep-out cones (with the torque and rate limits) may leave no feasible path."
+        msg += " Runs: " + "; ".join(failures)
+        return SlewSolution(False, status, msg, **kw)
+    failed = [k for k, c in checks.items() if not c["passed"]]
+    if failed:
+        k = failed[0]
+        c = checks[k]
+        text = f"verification failed: {k} = {c['value']:.3g} (tolerance {c['tol']:.3g})"
+        if len(failed) > 1:
+            text += f"; also failed: {', '.join(failed[1:])}"
+        return SlewSolution(False, STATUS_VERIFICATION_FAILED,
+                            f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}", **kw)
+    if not prob.cones and math.isfinite(baseline):
+        slower = fields["tf"] > baseline * (1 + 1e-6) + fields["tf_tol"]
+        # per-axis bound: an answer no faster than the eigenaxis slew is, in practice, the
+        # eigenaxis slew itself — a stationary point that IPOPT cannot leave when the guess
+        # has the symmetry of a slew about a principal axis (R5 from its plain eigenaxis
+        # guess); precession makes per-axis optima 5-20 % faster
+        saddle = math.isinf(sc.p) and fields["tf"] >= baseline * (1 - 1e-3)
+        if slower or saddle:
+            what = ("slower than" if slower else "no faster than")
+            return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
+                                f"{STATUS_MESSAGES[STATUS_WORSE_THAN_BASELINE]} Collocation optimum "
+                                f"{fields['tf']:.9g} is {what} the eigenaxis slew {baseline:.9g}"
+                                + ("" if slower else " (a stationary point held by symmetry, typically; "
+                                   "try more starts, n_starts)") + f".{local}", **kw)
+    msg = "Collocation NLP solved (IPOPT Solve_Succeeded) and verified by re-propagation."
+    if len(cands) > 1:
+        msg += f" Best of {len(cands)} refined local optima (final times {cands})."
+    msg += local
+    if failures:
+        msg += " Runs that failed: " + "; ".join(failures)
+    return SlewSolution(True, STATUS_SUCCESS, msg, **kw)
