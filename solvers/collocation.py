@@ -55,7 +55,7 @@ Constraints
   path can sag into a cone *between* the points (R4: by 2e-5 rad at N = 60), so after
   the solve the re-propagated path is checked and, while its interior margin is
   negative, the NLP is re-solved (warm) with ``δ_c`` increased by 1.5 times the violation
-  (at most 4 times; ``route`` says the back-off used; R4 needs about 1e-4 rad, which
+  (at most 4 times; ``route`` says the back-off used; R4 needs 1e-5 – 3e-5 rad, which
   costs about 1e-5 relative in ``tf``).
 
 Quaternion norm: **not** enforced by a constraint. The start is a unit quaternion and
