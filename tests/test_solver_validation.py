@@ -14,16 +14,21 @@ def _prob(**kw):
     return SlewProblem(**d)
 
 
-def test_cones_rejected_until_supported():
+def test_cones_rejected_by_the_indirect_route_until_supported():
     p = _prob(cones=[{"axis": [0, 1, 0], "half_angle_deg": 20}])
-    with pytest.raises(ValueError, match=r"^cones: .*not supported"):
-        solvers.solve(p)
+    with pytest.raises(ValueError, match=r"^cones: .*not supported.*method='auto' or 'collocation'"):
+        solvers.solve(p, method="indirect")
 
 
-def test_pointing_target_rejected_until_supported():
+def test_pointing_target_rejected_by_the_indirect_route_until_supported():
     p = SlewProblem([1, 1, 1], sensor_target=[0, 1, 0])
     with pytest.raises(ValueError, match=r"^sensor_target: pointing-only"):
-        solvers.solve(p)
+        solvers.solve(p, method="multiple-shooting")
+
+
+def test_bad_collocation_options():
+    with pytest.raises(ValueError, match=r"^collocation: expected a dict"):
+        solvers.solve(_prob(), collocation=5)
 
 
 def test_nan_in_problem_dict():
@@ -73,7 +78,7 @@ def test_guess_of_wrong_type():
 def test_a_wild_guess_fails_cleanly_within_budget():
     # a guess that cannot converge, with every other candidate disabled: the result says so
     g = solvers.Guess(costate0=[0, 0, 0, 1, 0, 0, 0], tf=0.01, source="wild")
-    sol = solvers.solve(_prob(), guess=g, max_candidates=1, time_budget=20)
+    sol = solvers.solve(_prob(), method="indirect", guess=g, max_candidates=1, time_budget=20)
     assert not sol.success
     assert sol.status in (1, 2, 3)
     assert sol.n_candidates == 1
