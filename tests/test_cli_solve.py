@@ -189,3 +189,9 @@ def test_batch_records_a_solver_crash_and_goes_on(tmp_path, monkeypatch):
     recs = [json.loads(line) for line in out.read_text().splitlines()]
     assert [r["status"] for r in recs] == [-2, -2, -1]
     assert recs[0]["message"] == "internal error: RuntimeError: boom"
+
+
+def test_cli_method_choices_match_the_solver():
+    import solvers
+    from training.cli_solve import METHOD_CHOICES
+    assert tuple(METHOD_CHOICES) == tuple(solvers.METHODS)
