@@ -1,4 +1,4 @@
-"""Benchmark: the indirect solver on N seeded random rest-to-rest slews, classical guesses only.
+"""Benchmark: solvers.solve on N seeded random rest-to-rest slews, classical guesses only.
 
 Prints convergence rate, median / 95th-percentile wall time, Newton iterations, and the
 floor — one propagation of the converged extremal with its sensitivities (6 columns) —
@@ -79,11 +79,16 @@ def main(argv=None):
     statuses = {}
     for s in rows:
         statuses[s.status] = statuses.get(s.status, 0) + 1
-    print(f"indirect solver benchmark: {args.n} random rest-to-rest slews, seed {args.seed}, "
+    print(f"solver benchmark: {args.n} random rest-to-rest slews, seed {args.seed}, "
           f"torque_norm {args.norm}, method {args.method}, classical guesses only")
     print(f"  convergence (verified)       {len(ok)}/{len(rows)} = {100 * len(ok) / len(rows):.1f} %"
           f"   (symmetric {sum(s.success for s in sym)}/{len(sym)}, asymmetric {sum(s.success for s in asym)}/{len(asym)})")
     print(f"  statuses                     {dict(sorted(statuses.items()))}")
+    by_method = {}
+    for s in ok:
+        by_method[s.method] = by_method.get(s.method, 0) + 1
+    print(f"  verified answers by method   {dict(sorted(by_method.items()))}"
+          "   (indirect: exact bang-bang extremal; collocation: approximate, own tolerances)")
     print(f"  wall time, all   median {1e3 * np.median(wall):9.1f} ms   p95 {1e3 * np.percentile(wall, 95):9.1f} ms")
     print(f"  wall time, conv. median {1e3 * np.median(wall_ok):9.1f} ms   p95 {1e3 * np.percentile(wall_ok, 95):9.1f} ms")
     print(f"  Newton iterations (conv.)    median {np.median(nit):.0f}   p95 {np.percentile(nit, 95):.0f}")
