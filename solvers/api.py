@@ -262,7 +262,7 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
         # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
         # problem, where the λω = 0 instant makes a near guess hard to refine)
         opts = dict(options, max_candidates=2, min_candidates=1, enough=1,
-                    time_budget=max(1.0, min(5.0, budget - spent())))
+                    time_budget=max(0.5, min(2.0, budget - spent())))
         ref = _solve_indirect(prob, "indirect", g, **opts)
         # the refined extremal must be the one collocation found (or better), not another
         col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
