@@ -7,10 +7,13 @@ scheduling, and a restarted run regenerates exactly the same problems.
 
 Each problem is solved by a pluggable *solve function* (``solve_fn(problem, **options)``
 returning a ``SlewSolution``-like object or its ``to_dict()``). The default,
-``solve_default``, is ``solvers.solve`` with its multi-start. A record is a success only if
-the solver reported ``success=True`` with status 0, a finite ``tf`` and every verification
-check passed; anything else, including a ``ValueError`` (a problem the route does not
-support, e.g. keep-out cones today), is a failure record carrying the reason.
+``solve_default``, is ``solvers.solve`` (``method="auto"``: collocation, then the exact
+indirect refinement). A record is a success only if the solver reported ``success=True``
+with status 0, a finite ``tf`` and every verification check passed; anything else,
+including a ``ValueError`` (a problem the route does not support), is a failure record
+carrying the reason. ``exact`` says whether a success is an exact extremal (its switch
+times and costates reproduce the trajectory) or an approximate collocation answer (the
+(near-)singular problems, and keep-out cones today): train on what fits the purpose.
 
 Backends: ``"local"`` (a ``concurrent.futures.ProcessPoolExecutor``, spawned workers; one
 worker runs in-process) and ``"ray"`` (the same task function as Ray remote tasks). In
@@ -52,7 +55,7 @@ DEFAULT_SOLVE_FN = "training.generate:solve_default"
 
 RECORD_FIELDS = ("index", "family", "seed", "problem", "success", "status", "message", "tf", "tf_tol",
                  "costate0", "switch_times", "u_first", "nit", "nfev", "wall_time_s", "n_candidates",
-                 "candidates_tf", "method", "route", "guess", "baseline_tf", "verification",
+                 "candidates_tf", "method", "route", "guess", "baseline_tf", "verification", "exact",
                  "solve_fn", "solver_version", "solver_commit")
 
 
@@ -198,6 +201,8 @@ def solve_task(spec: GenerationSpec, index: int, solve_fn: Optional[Callable] = 
                                    f"Solver said: {rec['message']}")
         else:
             rec["success"] = False
+        # an exact extremal comes from the indirect routes; collocation answers are approximate
+        rec["exact"] = bool(rec["success"] is True and rec.get("method") in ("indirect", "multiple-shooting"))
     except ValueError as e:
         rec.update(success=False, status=STATUS_REJECTED, message=f"{stage}: {e}")
     except Exception as e:   # a bug in a route must cost one record, not the run
