@@ -23,16 +23,7 @@ import solvers  # noqa: E402
 from slew_env import SlewProblem  # noqa: E402
 from slew_env.core import qfrom_uniform  # noqa: E402
 from solvers.collocation import solve_collocation  # noqa: E402
-
-
-def random_problems(n, seed, norm):
-    rng = np.random.default_rng(seed)
-    out = []
-    for k in range(n):
-        J = [1.0, 1.0, 1.0] if k % 2 == 0 else rng.uniform(0.3, 1.0, 3)
-        out.append(SlewProblem(J, torque_norm=norm, q0=qfrom_uniform(*rng.random(3)),
-                               qf=qfrom_uniform(*rng.random(3))))
-    return out
+from bench_solver import random_problems  # noqa: E402  (the same problem set)
 
 
 def main(argv=None):

@@ -383,7 +383,7 @@ class SlewProblem:
         if isinstance(d, SlewProblem):
             return d
         if not isinstance(d, dict):
-            raise ValueError(f"problem: expected a JSON object / dict, got {type(d).__name__}")
+            raise ValueError(f"problem: expected a SlewProblem or a dict (JSON object), got {type(d).__name__}")
         unknown = set(d) - set(FIELDS)
         if unknown:
             raise ValueError(f"problem: unknown field(s) {sorted(unknown)}; known fields are {list(FIELDS)}")

@@ -56,14 +56,6 @@ _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enou
             "eps_min", "rtol", "atol"}
 
 
-def _as_problem(problem):
-    if isinstance(problem, SlewProblem):
-        return problem
-    if isinstance(problem, dict):
-        return SlewProblem.from_dict(problem)
-    raise ValueError(f"problem: expected a SlewProblem or a dict, got {type(problem).__name__}")
-
-
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
     if g.switch_times is None:
         return None
@@ -206,7 +198,7 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     baseline, ``SlewSolution.baseline_tf``) is a local optimum: it is returned with
     ``success=False`` and status 4, never as the answer.
     """
-    prob = _as_problem(problem)
+    prob = SlewProblem.from_dict(problem)   # a SlewProblem passes through
     if method not in METHODS:
         raise ValueError(f"method: unknown method {method!r}; choose one of {', '.join(METHODS)}")
     unknown = set(options) - _OPTIONS

@@ -157,6 +157,7 @@ from slew_env.core.dynamics import state_rhs
 from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
 from slew_env.core.cones import angle_between
 from .guesses import Guess
+from .verify import failure_text, make_check
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 
@@ -197,14 +198,6 @@ _SAMPLES_PER_INTERVAL = 24
 
 
 # ----------------------------------------------------------------------------- helpers
-def _as_problem(problem):
-    if isinstance(problem, SlewProblem):
-        return problem
-    if isinstance(problem, dict):
-        return SlewProblem.from_dict(problem)
-    raise ValueError(f"problem: expected a SlewProblem or a dict, got {type(problem).__name__}")
-
-
 def _qexp_body(q0, n, theta):
     """``q0 ⊗ [cos θ/2, n sin θ/2]`` for arrays of ``theta``."""
     th = np.asarray(theta, dtype=float)
@@ -1012,10 +1005,6 @@ def _replay(sc: _Scaled, run: _Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
     return _Replay(np.concatenate(ts), np.vstack(xs), nf, "", u_of)
 
 
-def _check(value, tol, passed):
-    return {"value": float(value), "tol": float(tol), "passed": bool(passed)}
-
-
 def _margins(prob, q):
     """Smallest clearance margin (rad) over the cones, for each row of ``q``."""
     qn = q / np.linalg.norm(q, axis=1, keepdims=True)
@@ -1114,7 +1103,7 @@ def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
     tol_att = max(1e-6, tols["boundary_attitude_error"] * scale2)
     tol_rate = max(1e-6, tols["boundary_rate_error"] * scale2)
     if rep.x is None:
-        checks["propagation"] = _check(1.0, 0.0, False)
+        checks["propagation"] = make_check(1.0, 0.0, False)
         att = rate = math.inf
     else:
         xT = rep.x[-1]
@@ -1124,33 +1113,33 @@ def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
         else:
             att = float(angle_between(np.asarray(qrotate(qT, prob.sensor_axis)), prob.sensor_target))
         rate = float(np.linalg.norm(xT[4:7] - sc.wf))
-    checks["boundary_attitude_error"] = _check(att, tol_att, att <= tol_att)
-    checks["boundary_rate_error"] = _check(rate / tau, tol_rate / tau, rate <= tol_rate)
+    checks["boundary_attitude_error"] = make_check(att, tol_att, att <= tol_att)
+    checks["boundary_rate_error"] = make_check(rate / tau, tol_rate / tau, rate <= tol_rate)
     gval = nlp.g(run.w, run.delta)
     max_def = float(np.max(np.abs(gval[:nlp.n_eq])))
-    checks["max_defect"] = _check(max_def, tols["max_defect"], max_def <= tols["max_defect"])
+    checks["max_defect"] = make_check(max_def, tols["max_defect"], max_def <= tols["max_defect"])
     if prob.cones:
         m = float(np.min(_margins(prob, x_all[:, 0:4])))
         if rep.x is not None:
             m = min(m, float(np.min(_margins(prob, rep.x[:, 0:4]))))
         else:
             m = -math.inf
-        checks["cone_clearance"] = _check(m, tols["cone_clearance"], m >= tols["cone_clearance"])
+        checks["cone_clearance"] = make_check(m, tols["cone_clearance"], m >= tols["cone_clearance"])
     if prob.rate_max is not None:
         wmax = np.max(np.abs(x_all[:, 4:7]), axis=0)
         if rep.x is not None:
             wmax = np.maximum(wmax, np.max(np.abs(rep.x[:, 4:7]), axis=0))
         worst = float(np.max(wmax / sc.rate)) if rep.x is not None else math.inf
-        checks["rate_limit"] = _check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
+        checks["rate_limit"] = make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
     if math.isinf(sc.p):
         tb = float(np.max(np.abs(u_all) / sc.U))
     else:
         tb = float(np.max(np.sum(np.abs(u_all / sc.U) ** sc.p, axis=1) ** (1.0 / sc.p)))
-    checks["torque_bound"] = _check(tb, tols["torque_bound"], tb <= tols["torque_bound"])
-    checks["quaternion_norm_drift"] = _check(drift, tols["quaternion_norm_drift"],
+    checks["torque_bound"] = make_check(tb, tols["torque_bound"], tb <= tols["torque_bound"])
+    checks["quaternion_norm_drift"] = make_check(drift, tols["quaternion_norm_drift"],
                                              drift <= tols["quaternion_norm_drift"])
     # diagnostic only (never fails): how far the costate estimate is from H ≡ -1
-    checks["hamiltonian_spread"] = _check(H_spread, math.inf, True)
+    checks["hamiltonian_spread"] = make_check(H_spread, math.inf, True)
     # ---- tf tolerance: the change from the coarse grid, or else the boundary miss of the
     # re-propagation as a relative time (an order of magnitude only)
     if math.isfinite(Tc):
@@ -1250,7 +1239,7 @@ def solve_collocation(problem, *, n_intervals: int = 60, transcription: str = "h
     the fields, the checks and the statuses.
     """
     t_start = time.perf_counter()
-    prob = _as_problem(problem)
+    prob = SlewProblem.from_dict(problem)
     if isinstance(n_intervals, bool) or not isinstance(n_intervals, (int, np.integer)):
         raise ValueError(f"n_intervals: expected an integer ≥ 2, got {n_intervals!r}")
     if n_intervals < 2:
@@ -1418,13 +1407,8 @@ def solve_collocation(problem, *, n_intervals: int = 60, transcription: str = "h
             msg += " The keep-out cones (with the torque and rate limits) may leave no feasible path."
         msg += " Runs: " + "; ".join(failures)
         return SlewSolution(False, status, msg, **kw)
-    failed = [k for k, c in checks.items() if not c["passed"]]
-    if failed:
-        k = failed[0]
-        c = checks[k]
-        text = f"verification failed: {k} = {c['value']:.3g} (tolerance {c['tol']:.3g})"
-        if len(failed) > 1:
-            text += f"; also failed: {', '.join(failed[1:])}"
+    text = failure_text(checks)
+    if text:
         return SlewSolution(False, STATUS_VERIFICATION_FAILED,
                             f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}", **kw)
     if not prob.cones and math.isfinite(baseline):

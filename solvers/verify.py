@@ -43,8 +43,20 @@ DEFAULT_TOLS = {
 }
 
 
-def _check(value, tol, passed):
+def make_check(value, tol, passed):
     return {"value": float(value), "tol": float(tol), "passed": bool(passed)}
+
+
+def failure_text(checks):
+    """``""`` when every check passed, else which failed first and by how much."""
+    failed = [k for k, c in checks.items() if not c["passed"]]
+    if not failed:
+        return ""
+    c = checks[failed[0]]
+    text = f"verification failed: {failed[0]} = {c['value']:.3g} (tolerance {c['tol']:.3g})"
+    if len(failed) > 1:
+        text += f"; also failed: {', '.join(failed[1:])}"
+    return text
 
 
 def dense_record(bvp, z, T, n=400):
@@ -76,32 +88,32 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400):
     checks = {}
     tr = dense_record(bvp, z, T, n_dense)
     if not tr.ok or tr.t.shape[0] < 2:
-        checks["propagation"] = _check(1.0, 0.0, False)
+        checks["propagation"] = make_check(1.0, 0.0, False)
         return False, checks, f"propagation failed: {tr.message}", tr
     yT = tr.y[-1]
     att = float(qerror_angle(yT[0:4], bvp.qf))
     rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
-    checks["boundary_attitude_error"] = _check(att, tols["boundary_attitude_error"],
+    checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
                                                att <= tols["boundary_attitude_error"])
-    checks["boundary_rate_error"] = _check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
+    checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                            rate_nd <= tols["boundary_rate_error"])
     H = np.array([bvp.hamiltonian(tr.y[k], tr.signs[k]) for k in range(tr.t.shape[0])])
     H0 = H[0]
     drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))
-    checks["hamiltonian_drift"] = _check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
-    checks["normality"] = _check(H0, 0.0, H0 < 0.0)
+    checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
+    checks["normality"] = make_check(H0, 0.0, H0 < 0.0)
     S = tr.y[:, 11:14] / bvp.J
     if bvp.mode == af.MODE_BANG:
         amax = np.max(np.abs(S), axis=0)
         amax[amax == 0] = 1.0
         worst = float(np.max(tr.signs * S / amax))
-        checks["switching_law"] = _check(worst, tols["switching_law"], worst <= tols["switching_law"])
+        checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
         if structure is not None:
             ok_axes = (tr.switch_axis.shape[0] == structure.n and np.array_equal(tr.switch_axis, structure.axes)
                        and np.array_equal(tr.signs0, structure.signs0))
             dev = float(np.max(np.abs(tr.switch_t - structure.times))) / T if ok_axes and structure.n else (
                 0.0 if ok_axes else math.inf)
-            checks["switch_structure"] = _check(dev, tols["switch_structure"],
+            checks["switch_structure"] = make_check(dev, tols["switch_structure"],
                                                 ok_axes and dev <= tols["switch_structure"])
         sw = [tr.switch_t[tr.switch_axis == i] for i in range(3)]
         x = replay_bang_bang(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw, tr.signs0, T)
@@ -109,7 +121,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400):
     else:
         sig = np.linalg.norm(S * bvp.umax, axis=1)
         ratio = float(np.min(sig) / max(np.max(sig), 1e-300))
-        checks["switching_law"] = _check(ratio, 0.0, ratio > 0.0)
+        checks["switching_law"] = make_check(ratio, 0.0, ratio > 0.0)
         J, um, p, eps = bvp.J, bvp.umax, bvp.p, bvp.eps
         s0 = np.ones(3)
 
@@ -122,17 +134,10 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400):
         rep = max(float(qerror_angle(yR[0:4], bvp.qf)), float(np.linalg.norm(yR[4:7] - bvp.wf)))
         # a p-norm control is continuous except where λω = 0; Radau is less accurate there
         tols["replay"] = max(tols["replay"], 1e-6)
-    checks["replay"] = _check(rep, tols["replay"], rep <= tols["replay"])
+    checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
     if prob.rate_max is not None:
         w = np.max(np.abs(tr.y[:, 4:7]), axis=0) / bvp.tau
         worst = float(np.max(w / prob.rate_max))
-        checks["rate_limit"] = _check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
-    failed = [k for k, c in checks.items() if not c["passed"]]
-    if failed:
-        k = failed[0]
-        c = checks[k]
-        text = f"verification failed: {k} = {c['value']:.3g} (tolerance {c['tol']:.3g})"
-        if len(failed) > 1:
-            text += f"; also failed: {', '.join(failed[1:])}"
-        return False, checks, text, tr
-    return True, checks, "", tr
+        checks["rate_limit"] = make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
+    text = failure_text(checks)
+    return not text, checks, text, tr

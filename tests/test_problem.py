@@ -502,7 +502,7 @@ def test_unknown_fields_rejected():
 
 
 def test_from_dict_and_json_bad_input():
-    with pytest.raises(ValueError, match=r"^problem: expected a JSON object"):
+    with pytest.raises(ValueError, match=r"^problem: expected a SlewProblem or a dict \(JSON object\)"):
         SlewProblem.from_dict([1, 2, 3])
     with pytest.raises(ValueError, match=r"^problem: not valid JSON"):
         SlewProblem.from_json("{inertia: [1, 1, 1]}")
