@@ -242,7 +242,8 @@ def summarise(episodes: list) -> dict:
         "n_with_cones": len(margins), "min_cone_margin_deg": min(margins) if margins else None,
         "n_truncated": sum(not e["terminated"] for e in episodes),
         "tf_policy_median": tfp["median"], "tf_policy_mean": tfp["mean"],
-        "solver_ok": outcomes.get("ok", 0), "solver_failed": outcomes.get("failed", 0),
+        "solver_ok": outcomes.get("ok", 0), "solver_ok_exact": sum(bool(e.get("optimal_exact")) for e in episodes),
+        "solver_failed": outcomes.get("failed", 0),
         "solver_refused": outcomes.get("refused", 0), "solver_reasons": dict(reasons.most_common(8)),
         "success_rate_where_solver_ok": (sum(e["success"] for e in episodes if e["solver"] == "ok")
                                          / max(outcomes.get("ok", 0), 1)) if outcomes.get("ok") else None,
@@ -302,6 +303,9 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
         r.update(index=i, slew_angle_deg=float(np.degrees(prob.slew_angle)), n_cones=len(prob.cones),
                  solver=outcome, solver_status=rec.get("status"), solver_message=str(rec.get("message") or ""),
                  tf_optimal=tf_opt, tf_eigenaxis=float(base) if isinstance(base, (int, float)) else None,
+                 optimal_exact=(bool(rec["exact"]) if rec.get("exact") is not None
+                                else rec.get("method") in ("indirect", "multiple-shooting")) if tf_opt else None,
+                 solver_method=rec.get("method"),
                  ratio=r["time"] / tf_opt if (r["success"] and tf_opt) else None,
                  ratio_eigenaxis=r["time"] / float(base) if (r["success"] and isinstance(base, (int, float))
                                                                 and base > 0) else None)
@@ -376,6 +380,8 @@ def report_markdown(results: dict, with_plot: bool) -> str:
               f"| truncated (time limit) | {s['n_truncated']} |",
               f"| final time tf_policy at success, median / mean | {_f(s['tf_policy_median'])} / {_f(s['tf_policy_mean'])} |",
               f"| solver: verified optimum / failed / refused | {s['solver_ok']} / {s['solver_failed']} / {s['solver_refused']} |",
+              f"| of the verified optima: exact extremals (indirect) / collocation answers | {s['solver_ok_exact']} / "
+              f"{s['solver_ok'] - s['solver_ok_exact']} |",
               f"| success rate where the solver verified an optimum | "
               f"{_f(None if s['success_rate_where_solver_ok'] is None else 100 * s['success_rate_where_solver_ok'], '.1f')} % |",
               f"| tf_policy / tf_optimal: n | {s['ratio_n']} |",
