@@ -152,3 +152,22 @@ def test_heldout_problems_are_deterministic():
     a = heldout_problems("full-attitude", 2, 7)
     b = heldout_problems("full-attitude", 2, 7)
     assert a == b and a[0] != a[1]
+
+
+def test_sac_bc_pretrain_prefills_replay_and_warms_up(solutions, tmp_path):
+    sol_path, _ = solutions
+    cfg = tmp_path / "sac.yaml"
+    cfg.write_text(yaml.safe_dump({"full-attitude": {
+        "n_envs": 1, "n_timesteps": 300, "policy_kwargs": {"net_arch": [32, 32]},
+        "hyperparameters": {"buffer_size": 2000, "learning_starts": 1000, "batch_size": 32},
+        "env_kwargs": {"max_episode_steps": 100}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+        "bc": {"epochs": 3, "actor_warmup": 100, "ent_coef_init": 0.02, "rl_learning_rate": 1e-4}}}))
+    info = train("sac", "full-attitude", config=cfg, seed=0, out=tmp_path / "run", bc_pretrain=3,
+                 expert_data=sol_path, bc_seed=SEED)
+    bc = info["bc"]
+    assert bc["replay_prefilled"] > 20 and bc["actor_warmup"] == 100 and bc["ent_coef_init"] == 0.02
+    assert bc["train_mse_last"] < bc["train_mse_first"]
+    from stable_baselines3 import SAC
+    m = SAC.load(str(tmp_path / "run" / "model.zip"), device="cpu")
+    assert m.learning_starts == 0 and m.num_timesteps >= 300
+    assert all(p.requires_grad for p in m.actor.parameters())

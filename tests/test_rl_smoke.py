@@ -147,3 +147,11 @@ def test_config_files_and_overrides():
     from training.rl.train import apply_overrides
     cfg = apply_overrides(load_config("ppo", "full-attitude"), ["hyperparameters.gamma=0.9", "env_kwargs.shaping=0"])
     assert cfg["hyperparameters"]["gamma"] == 0.9 and cfg["env_kwargs"]["shaping"] == 0
+
+
+def test_subproc_vec_env(tmp_path):
+    """SubprocVecEnv workers register Slew-v0 themselves (env id "slew_env:slew_env/Slew-v0")."""
+    cfg = dict(PPO_CFG, n_timesteps=512, eval={"eval_freq": 0}, checkpoint={"save_freq": 0})
+    info = train("ppo", "full-attitude", config=_write_cfg(tmp_path, "ppo", cfg), out=tmp_path / "run",
+                 vec_env="subproc")
+    assert info["vec_env"] == "subproc" and info["num_timesteps"] >= 512

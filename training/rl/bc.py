@@ -20,8 +20,12 @@ Pre-training (``slew train-rl --bc-pretrain N``, ``pretrain``):
   ``value_pretrain``, the value network to the expert's discounted returns; ``log_std``
   (if set) replaces the policy's log standard deviation (the RL phase's exploration noise);
   ``rl_learning_rate`` (if set, PPO and SAC) replaces the learning rate of the RL phase;
-* SAC: the actor's deterministic action ``tanh(mean)`` is fitted (MSE), and, with
-  ``prefill_replay``, the expert transitions are put in the replay buffer.
+* SAC: the actor's deterministic action ``tanh(mean)`` is fitted (MSE); with
+  ``prefill_replay`` the expert transitions are put in the replay buffer (and the random-action
+  warm-up ``learning_starts`` is skipped); ``ent_coef_init`` sets the initial entropy
+  temperature; ``actor_warmup`` keeps the actor frozen for that many gradient steps while the
+  critic learns (without these, the untrained critic and the initial temperature 1 undid the
+  cloned actor).
 
 Command line::
 
@@ -51,7 +55,8 @@ from . import ALGOS, DEFAULT_BC_SEED, DEFAULT_EVAL_SEED, FAMILIES
 
 ACTION_MODES = ("average", "start")
 BC_DEFAULTS = {"epochs": 50, "batch_size": 256, "learning_rate": 1e-3, "action": "average",
-               "value_pretrain": True, "prefill_replay": True, "n_sub": 32, "log_std": None, "rl_learning_rate": None}
+               "value_pretrain": True, "prefill_replay": True, "n_sub": 32, "log_std": None, "rl_learning_rate": None, "actor_warmup": 0,
+               "ent_coef_init": None}
 
 
 # --------------------------------------------------------------------------- expert solutions
@@ -320,6 +325,36 @@ def pretrain_value(model, obs: np.ndarray, returns: np.ndarray, epochs: int = 20
     return hist
 
 
+def actor_warmup_callback(n_updates: int):
+    """SAC: keep the cloned actor frozen for the first ``n_updates`` gradient steps (the critic learns first)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class ActorWarmup(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.frozen = False
+
+        def _set(self, frozen):
+            for p in self.model.actor.parameters():
+                p.requires_grad_(not frozen)
+            self.frozen = frozen
+
+        def _on_training_start(self):
+            if self.model._n_updates < n_updates:
+                self._set(True)
+
+        def _on_step(self):
+            if self.frozen and self.model._n_updates >= n_updates:
+                self._set(False)
+            return True
+
+        def _on_training_end(self):
+            if self.frozen:
+                self._set(False)
+
+    return ActorWarmup()
+
+
 def prefill_replay(model, vecnorm, data: dict) -> int:
     """SAC: add the expert transitions (raw observations, as SB3 stores them) to the replay buffer."""
     buf = model.replay_buffer
@@ -374,6 +409,14 @@ def pretrain(model, family: str, n_episodes: int, env_kwargs=None, bc_cfg=None, 
     if isinstance(model, SAC):
         if cfg["prefill_replay"]:
             info["replay_prefilled"] = prefill_replay(model, vn, data)
+            model.learning_starts = 0     # no random-action warm-up: the buffer holds the expert's steps
+        if cfg["ent_coef_init"] is not None and getattr(model, "log_ent_coef", None) is not None:
+            import torch
+            with torch.no_grad():         # a cloned, near-deterministic actor: start with a low temperature
+                model.log_ent_coef.fill_(math.log(float(cfg["ent_coef_init"])))
+            info["ent_coef_init"] = float(cfg["ent_coef_init"])
+        if int(cfg["actor_warmup"]) > 0:
+            info["actor_warmup"] = int(cfg["actor_warmup"])   # training.rl.train adds ActorWarmup
     elif cfg["value_pretrain"]:
         if isinstance(vn, VecNormalize) and vn.norm_reward:
             info["value_pretrain"] = "skipped (norm_reward: returns are rescaled during RL)"

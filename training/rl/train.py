@@ -155,7 +155,8 @@ def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
     if vec_env not in ("dummy", "subproc"):
         raise ValueError(f"--vec-env: expected dummy or subproc, got {vec_env!r}")
     cls = SubprocVecEnv if vec_env == "subproc" and n_envs > 1 else DummyVecEnv
-    return make_vec_env(slew_env.ENV_ID, n_envs=n_envs, seed=seed, vec_env_cls=cls,
+    # "module:id" makes gymnasium import slew_env (which registers Slew-v0) in SubprocVecEnv workers too
+    return make_vec_env(f"slew_env:{slew_env.ENV_ID}", n_envs=n_envs, seed=seed, vec_env_cls=cls,
                         env_kwargs=make_env_kwargs(cfg), monitor_kwargs={"info_keywords": ("is_success",)})
 
 
@@ -414,6 +415,9 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
 
     use_rich = progress_bar and _rich_available()
     callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich)
+    if bc_info and bc_info.get("actor_warmup"):
+        from .bc import actor_warmup_callback
+        callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))
     t_learn = time.perf_counter()
     if timesteps > 0:
         model.learn(total_timesteps=int(timesteps), callback=callbacks, reset_num_timesteps=not resume_files,
