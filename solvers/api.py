@@ -95,6 +95,8 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
             if count < max_candidates and fresh(z, st):
                 yield z, T, st, g.source
                 count += 1
+    if count >= max_candidates:
+        return
     rng = np.random.default_rng(seed)
     g = eigenaxis_guess(bvp)
     z0, T0 = g.to_nondim(bvp)
@@ -134,6 +136,7 @@ def _polish_multiple(bvp, a: Attempt, segments):
     r = newton_shoot(bvp, a.z, a.T, segments=segments, tol=1e-11, max_step=0.1)
     if r.success and abs(r.T - a.T) < 1e-8 * a.T:
         a.z, a.T = r.p, r.T
+        a.trajectory = None   # recorded for the previous (z, T)
         a.route += f" + event-driven multiple shooting ({segments} segments)"
     a.nit += r.nit
     a.nfev += r.nfev
@@ -148,8 +151,7 @@ def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
     y0, _ = bvp.initial(a.z)
     costate0 = np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]])
     t = tr.t * tau
-    u_nd = np.array([af.control(tr.y[k], bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs[k])[0]
-                     for k in range(tr.t.shape[0])])
+    u_nd = af.control_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
     u = u_nd * umax0
     costate = np.hstack([c * tau * tr.y[:, 7:11], c * tau ** 2 * tr.y[:, 11:14]])
     if bvp.mode == af.MODE_BANG:
@@ -178,11 +180,20 @@ def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
                 _control=control, route=a.route, guess=guess_src, verification=checks)
 
 
-def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
+def solve(problem, method="auto", guess=None, warm_start="default", **options) -> SlewSolution:
     """Time-optimal slew of ``problem`` (``SlewProblem`` or dict).
 
     ``method``: ``"auto"`` (default), ``"indirect"``, ``"multiple-shooting"`` or
     ``"collocation"`` (see the module docstring). ``guess``: a ``solvers.Guess``.
+
+    ``warm_start``: where the first guess comes from when ``guess`` is not given
+    (indirect routes and ``"auto"``): ``"default"`` (the shipped learned model, for the
+    problems in its family), a model object (``solvers.warmstart.WarmStartModel``,
+    ``NearestNeighbourModel`` or anything with ``covers(problem)`` and ``guess(problem)``),
+    a model file path, or ``None``. The learned candidates are tried alone first (the first
+    verified extremal that is not slower than the eigenaxis slew wins); if none is
+    verified, the classical route runs as if there were no model. ``SlewSolution.warm_start``
+    records what happened and ``guess`` which candidate won.
 
     Options of the indirect routes: ``segments`` (multiple shooting, default 4),
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
@@ -212,9 +223,51 @@ def solve(problem, method="auto", guess=None, **options) -> SlewSolution:
     if method == "collocation":
         from .collocation import solve_collocation
         return solve_collocation(prob, guess=guess, **col_opts)
+    t0 = time.perf_counter()
+    warm = None
+    info = {}
+    if guess is None:
+        warm, info = _warm_start(prob, method, warm_start, options)
+        if warm is not None and warm.success:
+            warm.wall_time = time.perf_counter() - t0
+            return warm
     if method == "auto":
-        return _solve_auto(prob, guess, col_opts, options)
-    return _solve_indirect(prob, method, guess, **options)
+        sol = _solve_auto(prob, guess, col_opts, options)
+    else:
+        sol = _solve_indirect(prob, method, guess, **options)
+    if info:
+        sol.warm_start = info
+        if warm is not None:
+            sol.nit += warm.nit
+            sol.nfev += warm.nfev
+            sol.route = f"learned guess failed ({warm.message[:160]}) → {sol.route}"
+        sol.wall_time = time.perf_counter() - t0
+    return sol
+
+
+def _warm_start(prob, method, warm_start, options):
+    """Try the model's guess alone; returns ``(solution or None, info)``."""
+    from . import warmstart
+    model = warmstart.resolve(warm_start)
+    if model is None:
+        return None, {}
+    name = getattr(model, "name", type(model).__name__)
+    why = model.covers(prob)
+    if why:
+        return None, {"model": name, "covered": False, "reason": why}
+    t0 = time.perf_counter()
+    g = model.guess(prob)
+    t_inf = time.perf_counter() - t0
+    ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
+    budget = min(2.0, float(options.get("time_budget", 20.0)))
+    opts = dict(options, max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
+    sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
+    info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
+            "inference_s": t_inf, "time_s": time.perf_counter() - t0}
+    sol.warm_start = info
+    if sol.success:
+        sol.route = f"learned guess ({name}) → {sol.route}"
+    return sol, info
 
 
 def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
@@ -277,7 +330,9 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
     return ind
 
 
-def _solve_indirect(prob, method, guess, **options) -> SlewSolution:
+def _solve_indirect(prob, method, guess, first_verified=False, **options) -> SlewSolution:
+    """The indirect multi-start. ``first_verified``: stop at the first verified extremal that
+    is not slower than the eigenaxis slew (a warm start's candidates, best first)."""
     t_start = time.perf_counter()
     if prob.cones:
         raise ValueError("cones: keep-out cones are not supported by the indirect solvers yet "
@@ -322,7 +377,9 @@ def _solve_indirect(prob, method, guess, **options) -> SlewSolution:
         if time.perf_counter() > deadline:
             break
         tried += 1
-        if per_axis and st is not None and src.startswith("template"):
+        # structure templates and model guesses (learned, nearest-neighbour) carry a full
+        # switching structure: straight to the switch-time Newton, no smoothing path
+        if per_axis and st is not None and src.startswith(("template", "learned", "nearest")):
             a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}")
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
@@ -342,13 +399,17 @@ def _solve_indirect(prob, method, guess, **options) -> SlewSolution:
             bvp.set_mode("bang")
         else:
             bvp.set_mode("pnorm", p=prob.torque_norm)
-        ok, checks, text, tr = verify(bvp, a.z, a.T, a.structure, tols=tols, n_dense=n_dense)
+        # the event check's record (T / 400 steps) of the same (z, T) serves as the dense record
+        reuse = a.trajectory if (per_axis and n_dense == 400) else None
+        ok, checks, text, tr = verify(bvp, a.z, a.T, a.structure, tols=tols, n_dense=n_dense, trajectory=reuse)
         nfev += 2
         if not ok:
             last_verif_fail = (a, tr, checks, text, src)
             failures.append(f"{src}: {text}")
             continue
         found.append((a.T, a, tr, checks, src))
+        if first_verified and not (a.T > baseline * (1 + 1e-7)):
+            break
         if len(found) >= enough and tried >= min_candidates:
             Ts = sorted(f[0] for f in found)
             beats_baseline = not (Ts[0] > baseline * (1 + 1e-7))

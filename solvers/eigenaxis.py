@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
 from slew_env import SlewProblem
+from .core import eigenaxis_topp as topp
 from .guesses import eigenaxis_axis_angle
 
 
@@ -37,17 +38,9 @@ class EigenaxisSlew:
 
 def _accel_interval(a, c, U, p, s):
     """Interval of feasible θ̈ at phase-plane speed ``s``; ``None`` when empty."""
-    lo, hi = -math.inf, math.inf
-    for i in range(3):   # per-axis bound; for a p-norm it brackets the feasible set
-        if abs(a[i]) < 1e-15:
-            if abs(c[i] * s) > U[i]:
-                return None
-            continue
-        b1 = (-U[i] - c[i] * s) / a[i]
-        b2 = (U[i] - c[i] * s) / a[i]
-        lo = max(lo, min(b1, b2))
-        hi = min(hi, max(b1, b2))
-    if lo > hi:
+    # the per-axis interval; for a p-norm it brackets the feasible set
+    lo, hi, ok = topp.accel_interval(a, c, U, float(s))
+    if not ok:
         return None
     if math.isinf(p):
         return lo, hi
@@ -114,30 +107,11 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
         # without a gyroscopic term the feasible accelerations do not depend on the rate
         return fixed if fixed is not None else _accel_interval(a, c, U, p, min(s, s_max))
 
-    def amax(s):
-        iv = interval(s)
-        return iv[1] if iv is not None else 0.0
-
-    def amin(s):
-        iv = interval(s)
-        return iv[0] if iv is not None else 0.0
-
-    fwd = np.zeros_like(theta)
-    bwd = np.zeros_like(theta)
-    # ds/dθ = 2 θ̈ with θ̈ constant on each grid interval and feasible at BOTH of its
-    # ends, so the sampled torques never exceed the bound (conservative by O(dθ))
-    for k in range(n_grid):
-        s = fwd[k]
-        acc = amax(s)
-        for _ in range(3):
-            acc = min(acc, amax(min(s + 2.0 * dth * acc, s_max)))
-        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
-    for k in range(n_grid, 0, -1):
-        s = bwd[k]
-        dec = amin(s)
-        for _ in range(3):
-            dec = max(dec, amin(min(s - 2.0 * dth * dec, s_max)))
-        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
+    if math.isinf(p):   # the compiled sweeps (this baseline runs on every indirect solve)
+        fwd, bwd = topp.sweep_per_axis(np.ascontiguousarray(a, float), np.ascontiguousarray(c, float),
+                                       np.ascontiguousarray(U, float), float(s_max), float(th), int(n_grid))
+    else:
+        fwd, bwd = _sweep_python(interval, s_max, dth, n_grid)
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
     rate = np.sqrt(s_prof)
     # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)
@@ -152,3 +126,32 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     worse = np.max(np.abs(u_end) / U, axis=1) > np.max(np.abs(u_start) / U, axis=1)
     u[:-1][worse] = u_end[worse]
     return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u)
+
+
+def _sweep_python(interval, s_max, dth, n_grid):
+    """The phase-plane sweeps for p-norm bounds (see ``core.eigenaxis_topp.sweep_per_axis``)."""
+    def amax(s):
+        iv = interval(s)
+        return iv[1] if iv is not None else 0.0
+
+    def amin(s):
+        iv = interval(s)
+        return iv[0] if iv is not None else 0.0
+
+    fwd = np.zeros(n_grid + 1)
+    bwd = np.zeros(n_grid + 1)
+    # ds/dθ = 2 θ̈ with θ̈ constant on each grid interval and feasible at BOTH of its
+    # ends, so the sampled torques never exceed the bound (conservative by O(dθ))
+    for k in range(n_grid):
+        s = fwd[k]
+        acc = amax(s)
+        for _ in range(3):
+            acc = min(acc, amax(min(s + 2.0 * dth * acc, s_max)))
+        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
+    for k in range(n_grid, 0, -1):
+        s = bwd[k]
+        dec = amin(s)
+        for _ in range(3):
+            dec = max(dec, amin(min(s - 2.0 * dth * dec, s_max)))
+        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
+    return fwd, bwd

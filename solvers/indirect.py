@@ -35,6 +35,7 @@ class Attempt:
     message: str
     residual: float = math.inf
     history: list = field(default_factory=list)
+    trajectory: object = None   # the event-driven record (T / 400 steps) that confirmed the structure
 
 
 def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=400):
@@ -72,10 +73,10 @@ def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", ma
             return Attempt(False, sr.z, sr.T, sr.structure, nit, nfev, route,
                            f"switch-time Newton: {sr.message} (residual {sr.residual_norm:.2e})",
                            sr.residual_norm, sr.history)
-        same, ev, _ = _event_check(bvp, sr.z, sr.T, sr.structure)
+        same, ev, tr = _event_check(bvp, sr.z, sr.T, sr.structure)
         if same:
             return Attempt(True, sr.z, sr.T, sr.structure, nit, nfev, route, "converged",
-                           sr.residual_norm, sr.history)
+                           sr.residual_norm, sr.history, trajectory=tr)
         if ev is None:
             break
         # the switching law switches elsewhere: adopt its structure and solve again

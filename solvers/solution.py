@@ -37,7 +37,9 @@ class SlewSolution:
     ``method``, ``route`` (how the answer was reached), ``guess`` (which guess won);
     ``n_candidates`` tried and ``candidates_tf`` (final times of all converged
     candidates, the local optima seen); ``baseline_tf`` (the eigenaxis slew's time, for
-    rest-to-rest problems); ``verification`` (dict of checks).
+    rest-to-rest problems); ``verification`` (dict of checks); ``warm_start`` (the learned
+    warm start: ``model``, ``covered`` or the ``reason`` it was not, ``succeeded``,
+    ``candidates`` tried, ``time_s`` spent on it, ``inference_s``).
     """
     success: bool
     status: int
@@ -62,6 +64,7 @@ class SlewSolution:
     candidates_tf: List[float] = field(default_factory=list)
     baseline_tf: float = math.nan
     verification: dict = field(default_factory=dict)
+    warm_start: dict = field(default_factory=dict)
     problem: Any = None
     _control: Optional[Callable] = None
 
@@ -108,7 +111,7 @@ class SlewSolution:
             "wall_time_s": self.wall_time, "method": self.method, "route": self.route,
             "guess": self.guess, "n_candidates": self.n_candidates,
             "candidates_tf": self.candidates_tf, "baseline_tf": self.baseline_tf,
-            "verification": self.verification,
+            "verification": self.verification, "warm_start": self.warm_start,
         }
         if self.problem is not None:
             d["problem"] = self.problem.to_dict()

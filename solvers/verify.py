@@ -63,7 +63,7 @@ def dense_record(bvp, z, T, n=400):
     return bvp.record(z, T, hmax=T / n)
 
 
-def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=4000):
+def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
     """State at ``tf`` from switch times and first-arc signs alone (fixed-step RK4)."""
     events = sorted((float(t), i) for i in range(3) for t in switch_times[i])
     signs = np.array(u_first, dtype=float)
@@ -81,12 +81,16 @@ def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=40
     return x
 
 
-def verify(bvp, z, T, structure=None, tols=None, n_dense=400):
-    """Run the checks; returns ``(all_passed, checks, first_failure_text, dense_trajectory)``."""
+def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
+    """Run the checks; returns ``(all_passed, checks, first_failure_text, dense_trajectory)``.
+
+    ``trajectory``: the dense record of exactly ``(z, T)`` with steps capped at ``T / n_dense``
+    if the caller already has it (the solver's own event check), else it is recorded here.
+    """
     tols = dict(DEFAULT_TOLS, **(tols or {}))
     prob = bvp.problem
     checks = {}
-    tr = dense_record(bvp, z, T, n_dense)
+    tr = trajectory if trajectory is not None else dense_record(bvp, z, T, n_dense)
     if not tr.ok or tr.t.shape[0] < 2:
         checks["propagation"] = make_check(1.0, 0.0, False)
         return False, checks, f"propagation failed: {tr.message}", tr
@@ -97,7 +101,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400):
                                                att <= tols["boundary_attitude_error"])
     checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                            rate_nd <= tols["boundary_rate_error"])
-    H = np.array([bvp.hamiltonian(tr.y[k], tr.signs[k]) for k in range(tr.t.shape[0])])
+    H = af.hamiltonian_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
     H0 = H[0]
     drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))
     checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])

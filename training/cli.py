@@ -15,6 +15,8 @@ SUBCOMMANDS = {
     "generate": ("training.cli_generate", "generate a dataset of solved slews from a task family (resumable)"),
     "env-demo": ("training.cli_env_demo", "run a random policy on Slew-v0 and save a rendered frame"),
     "solve": ("training.cli_solve", "solve a slew (time-optimal, verified) from a problem JSON or a JSONL batch"),
+    "train": ("training.cli_train", "train the warm-start network on generated data and export it (numpy)"),
+    "evaluate": ("training.cli_evaluate", "evaluate a warm-start model against classical guesses on held-out slews"),
     "train-rl": ("training.cli_train_rl", "train PPO or SAC on Slew-v0 from a YAML config (resumable)"),
     "evaluate-rl": ("training.cli_evaluate_rl", "evaluate a trained policy on held-out slews against the optimum"),
 }

@@ -129,9 +129,29 @@ def solver_version() -> tuple:
 
 # --------------------------------------------------------------------------- solve routes
 def solve_default(problem, **options):
-    """The most robust route available today: ``solvers.solve`` (multi-start, continuation)."""
+    """The most robust route available today: ``solvers.solve`` (``method="auto"``:
+    collocation, exact indirect refinement, classical multi-start), without a learned warm
+    start unless ``warm_start`` is given, so that a dataset never depends on a model."""
     import solvers
+    options.setdefault("warm_start", None)
     return solvers.solve(problem, **options)
+
+
+def solve_warm(problem, model=None, fallback=False, **options):
+    """The fast route for bulk data: the warm-start ``model`` (a model file; default the
+    shipped one) by the indirect solver. ``fallback=False``: a problem the guess does not
+    solve becomes a failure record (no classical route), so the data are biased towards
+    problems the model already solves; mix with data from ``solve_default``."""
+    import solvers
+    from solvers.api import _warm_start
+    from slew_env import SlewProblem
+    prob = SlewProblem.from_dict(problem)
+    if fallback:
+        return solvers.solve(prob, warm_start=model or "default", **options)
+    sol, info = _warm_start(prob, "indirect", model or "default", options)
+    if sol is None:
+        raise ValueError(f"warm start: the model does not cover this problem ({info.get('reason')})")
+    return sol
 
 
 @functools.lru_cache(maxsize=None)

@@ -466,3 +466,24 @@ def hamiltonian(y, J, umax, mode, p, eps, signs):
     for i in range(7):
         h += y[7 + i] * f[i]
     return h
+
+
+@njit(cache=True)
+def hamiltonian_batch(Y, J, umax, mode, p, eps, S):
+    """``hamiltonian`` at every row of the recorded states ``Y`` with signs ``S``."""
+    n = Y.shape[0]
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = hamiltonian(Y[k], J, umax, mode, p, eps, S[k])
+    return out
+
+
+@njit(cache=True)
+def control_batch(Y, J, umax, mode, p, eps, S):
+    """``control`` (the torque only) at every row of ``Y`` with signs ``S``."""
+    n = Y.shape[0]
+    out = np.empty((n, 3))
+    for k in range(n):
+        u, _ = control(Y[k], J, umax, mode, p, eps, S[k])
+        out[k] = u
+    return out

@@ -1,0 +1,53 @@
+"""Learned warm starts for the indirect solver (numpy inference; training lives in ``training``).
+
+``solvers.solve(problem)`` asks the default model (shipped in ``models/``) for a guess when
+the problem is in the family the model covers, and falls back to the classical route when
+it is not or when the guess fails. Pass ``warm_start=`` a ``WarmStartModel``, a
+``NearestNeighbourModel``, a path to a model file, or ``None`` (no warm start).
+"""
+from __future__ import annotations
+
+import functools
+import os
+
+from .features import (FEATURE_NAMES, N_FEATURES, CanonicalForm, canonical_form, features,
+                       solution_from_canonical, solution_to_canonical)
+from .model import FORMAT, FORMAT_VERSION, ModelFileError, WarmStartModel
+from .nearest import NearestNeighbourModel
+
+MODELS_DIR = os.path.join(os.path.dirname(__file__), "models")
+DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
+
+
+def load_model(path):
+    """A warm-start model from a file: ``.npz`` (learned) or ``.nn.npz`` (nearest-neighbour table)."""
+    path = os.fspath(path)
+    if path.endswith(".nn.npz"):
+        return NearestNeighbourModel.load(path)
+    return WarmStartModel.load(path)
+
+
+@functools.lru_cache(maxsize=1)
+def default_model() -> WarmStartModel:
+    """The shipped model (loaded once per process)."""
+    return WarmStartModel.load(DEFAULT_MODEL_FILE)
+
+
+def resolve(warm_start):
+    """``"default"`` → the shipped model; a path → that file; a model → itself; ``None`` → ``None``."""
+    if warm_start is None or warm_start is False:
+        return None
+    if isinstance(warm_start, str) and warm_start == "default":
+        return default_model()
+    if isinstance(warm_start, (str, os.PathLike)):
+        return load_model(warm_start)
+    if hasattr(warm_start, "guess") and hasattr(warm_start, "covers"):
+        return warm_start
+    raise ValueError(f"warm_start: expected 'default', None, a model file path or a model with "
+                     f"guess() and covers(), got {type(warm_start).__name__}")
+
+
+__all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "features",
+           "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
+           "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
+           "resolve", "DEFAULT_MODEL_FILE"]

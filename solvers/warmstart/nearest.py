@@ -1,0 +1,97 @@
+"""Nearest-neighbour warm start: the data-driven baseline (look the problem up in a table
+of solved problems, reuse the neighbours' solutions).
+
+The table holds, per solved problem, its canonical features and its canonical
+nondimensional solution (``z'``, ``T``, the first-arc signs and switch times per canonical
+axis). A query is put in canonical form and the ``k`` nearest rows (Euclidean distance on
+standardised features) become the guess and its candidates, nearest first: each
+neighbour's costates, final time (rescaled by the ratio of eigenaxis times) and
+structure, mapped back to the query's axes.
+
+File format (``.nn.npz``): ``X`` (n, N_FEATURES), ``Z`` (n, 6), ``T`` (n,), ``T_eig``
+(n,), ``U`` (n, 3), ``S`` (n, 3, K) switch times (NaN-padded), and ``card`` (JSON:
+``format`` "slewopt-nn", ``format_version``, ``domain``, ``k``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from slew_env import SlewProblem
+from ..guesses import Guess
+from .features import canonical_form, solution_from_canonical, unsupported_reason
+from .model import ModelFileError, read_npz
+
+NN_FORMAT = "slewopt-nn"
+NN_FORMAT_VERSION = 1
+
+
+class NearestNeighbourModel:
+    def __init__(self, X, Z, T, T_eig, U, S, k=3, domain=None, name="nearest-neighbour"):
+        self.X = np.asarray(X, float)
+        if self.X.ndim != 2 or self.X.shape[0] == 0:
+            raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
+        self.Z, self.T, self.T_eig = np.asarray(Z, float), np.asarray(T, float), np.asarray(T_eig, float)
+        self.U, self.S = np.asarray(U, float), np.asarray(S, float)
+        self.k = int(k)
+        self.domain = domain or {}
+        self.name = name
+        self.scale = np.maximum(self.X.std(axis=0), 1e-3)
+        self.tree = cKDTree(self.X / self.scale)
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, **kw):
+        return cls(arrays["X"], arrays["Z"], arrays["T"], arrays["T_eig"], arrays["U"], arrays["S"], **kw)
+
+    @classmethod
+    def load(cls, path):
+        path = os.fspath(path)
+        d = read_npz(path)
+        try:
+            card = json.loads(str(d["card"]))
+        except (KeyError, json.JSONDecodeError) as e:
+            raise ModelFileError(f"model: {path} has no readable card ({e})") from None
+        if card.get("format") != NN_FORMAT or card.get("format_version") != NN_FORMAT_VERSION:
+            raise ModelFileError(f"model: {path} is not a {NN_FORMAT} v{NN_FORMAT_VERSION} file")
+        return cls.from_arrays(d, k=card.get("k", 3), domain=card.get("domain"), name=card.get("name", "nearest-neighbour"))
+
+    def save(self, path):
+        card = {"format": NN_FORMAT, "format_version": NN_FORMAT_VERSION, "k": self.k, "domain": self.domain,
+                "name": self.name}
+        np.savez(path, X=self.X, Z=self.Z, T=self.T, T_eig=self.T_eig, U=self.U, S=self.S,
+                 card=np.array(json.dumps(card)))
+
+    def covers(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        why = unsupported_reason(problem)
+        if why:
+            return why
+        if problem.rate_max is not None:
+            return "rate_max: the table holds problems without rate limits"
+        return None
+
+    def guess(self, problem) -> Guess:
+        problem = SlewProblem.from_dict(problem)
+        why = self.covers(problem)
+        if why:
+            raise ValueError(f"problem not covered by {self.name}: {why}")
+        cf = canonical_form(problem)
+        k = min(self.k, self.X.shape[0])
+        _, idx = self.tree.query(cf.x / self.scale, k=k)
+        idx = np.atleast_1d(idx)
+        out = None
+        for rank, j in enumerate(idx):
+            T = self.T[j] * cf.T_eig / self.T_eig[j]
+            ratio = T / self.T[j]
+            times = [self.S[j, i][np.isfinite(self.S[j, i])] * ratio for i in range(3)]
+            c0, tf, sw, uf = solution_from_canonical(problem, cf, self.Z[j], T, times, self.U[j])
+            g = Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]")
+            if out is None:
+                out = g
+            else:
+                out.candidates.append(g)
+        return out

@@ -1,0 +1,264 @@
+"""Learned warm start: canonical form, model files, inference, solve() integration, training, CLI."""
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+from slew_env.core.quaternion import qmul
+from solvers import Guess, solve
+from solvers.warmstart import (DEFAULT_MODEL_FILE, ModelFileError, NearestNeighbourModel, WarmStartModel,
+                               canonical_form, default_model, load_model, solution_from_canonical,
+                               solution_to_canonical)
+from solvers.warmstart.features import canonical_problem
+
+DATA = os.path.join(os.path.dirname(__file__), "data", "full-attitude-small.jsonl")
+
+
+def _records():
+    lines = open(DATA).read().splitlines()[1:]
+    return [json.loads(l) for l in lines]
+
+
+def _exact(n=None):
+    r = [r for r in _records() if r["method"] == "indirect"]
+    return r if n is None else r[:n]
+
+
+def _axis_quat(axis, angle):
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * a])
+
+
+# --------------------------------------------------------------------------- canonical form
+def test_canonical_form_ignores_the_inertial_frame():
+    rng = np.random.default_rng(0)
+    p = SlewProblem(inertia=[0.5, 1.0, 0.8], qf=_axis_quat([0.3, -0.8, 0.5], 2.0))
+    R = _axis_quat(rng.normal(size=3), 1.3)            # rotate the whole scene
+    p2 = p.replace(q0=qmul(R, p.q0), qf=qmul(R, p.qf))
+    np.testing.assert_allclose(canonical_form(p).x, canonical_form(p2).x, atol=1e-12)
+
+
+def test_symmetric_body_relabellings_share_one_canonical_form():
+    """For a symmetric body all 24 axis relabellings of a slew are the same problem."""
+    import itertools
+    n = np.array([0.3, -0.8, 0.5])
+    xs = []
+    for perm in itertools.permutations(range(3)):
+        for sg in itertools.product((1, -1), repeat=3):
+            P = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                P[i, j] = sg[i]
+            if np.linalg.det(P) < 0:
+                continue
+            xs.append(canonical_form(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat(P @ n, 2.0))).x)
+    assert len(xs) == 24
+    np.testing.assert_allclose(np.array(xs), np.tile(xs[0], (24, 1)), atol=1e-12)
+    x = xs[0]
+    assert x[0] >= x[1] >= abs(x[2]) and x[1] >= 0 and abs(x[3] - 2.0 / math.pi) < 1e-12
+
+
+def test_canonical_features_of_an_asymmetric_body():
+    p = SlewProblem(inertia=[2.0, 4.0, 1.0], torque_max=[1.0, 2.0, 2.0], qf=_axis_quat([0.1, -0.2, 0.9], 1.0))
+    cf = canonical_form(p)
+    assert cf.order == (2, 1, 0)
+    np.testing.assert_allclose(cf.x[4:7], [0.25, 1.0, 0.5])     # J / J_max in canonical order
+    np.testing.assert_allclose(cf.x[7:10], [1.0, 1.0, 0.5])     # u / u_max
+    assert abs(np.linalg.det(cf.A) - 1.0) < 1e-12 and cf.tau == pytest.approx(math.sqrt(4.0 / 2.0))
+
+
+@pytest.mark.parametrize("bad, field", [
+    (dict(sensor_target=[0.0, 1.0, 0.0], qf=None), "sensor_target"),
+    (dict(cones=[{"axis": [0, 0, 1], "half_angle_deg": 10}]), "cones"),
+    (dict(omega0=[0.01, 0, 0]), "omega0"),
+])
+def test_canonical_form_rejects_what_it_does_not_cover(bad, field):
+    base = dict(inertia=[1.0, 1.0, 1.0], qf=list(_axis_quat([1, 1, 0], 1.0)))
+    base.update(bad)
+    with pytest.raises(ValueError, match=field):
+        canonical_form(SlewProblem.from_dict(base))
+
+
+def test_solution_round_trip_and_canonical_problem_has_the_same_optimum():
+    r = _exact()[3]
+    cf = canonical_form(r["problem"])
+    z, T, sw, uf = solution_to_canonical(r["problem"], cf, r["costate0"], r["tf"], r["switch_times"], r["u_first"])
+    assert abs(np.linalg.norm(z) - 1.0) < 1e-12
+    c0, tf, sw2, uf2 = solution_from_canonical(r["problem"], cf, z, T, sw, uf)
+    assert tf == pytest.approx(r["tf"], rel=1e-14)
+    for a, b in zip(sw2, r["switch_times"]):
+        np.testing.assert_allclose(a, b, rtol=1e-13)
+    np.testing.assert_array_equal(uf2, r["u_first"])
+    # the costates agree up to the positive scale
+    c = np.asarray(r["costate0"])
+    assert np.dot(c0, c) / (np.linalg.norm(c0) * np.linalg.norm(c)) == pytest.approx(1.0, abs=1e-12)
+    # the canonical problem, solved from the mapped solution, has the same final time (nondim)
+    cp = canonical_problem(cf)
+    ccf = canonical_form(cp)
+    g = Guess(*solution_from_canonical(cp, ccf, z, T, sw, uf))
+    s = solve(cp, method="indirect", guess=g, max_candidates=1, min_candidates=1, warm_start=None)
+    assert s.success and s.tf == pytest.approx(T, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- model files
+def test_shipped_model_loads_and_has_a_card():
+    m = default_model()
+    c = m.card
+    assert c["format"] == "slewopt-warmstart" and c["format_version"] == 1 and len(c["sha256"]) == 64
+    assert c["training"]["n_exact_solutions"] > 0 and c["domain"]["torque_norm"] == "inf"
+    assert os.path.getsize(DEFAULT_MODEL_FILE) < 2_000_000
+
+
+def test_model_file_errors(tmp_path):
+    with pytest.raises(ModelFileError, match="file not found"):
+        WarmStartModel.load(tmp_path / "nope.npz")
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(open(DEFAULT_MODEL_FILE, "rb").read()[:500])
+    with pytest.raises(ModelFileError, match="not a readable"):
+        WarmStartModel.load(bad)
+    # another version
+    with np.load(DEFAULT_MODEL_FILE) as f:
+        arrays = {k: f[k] for k in f.files}
+    card = json.loads(str(arrays["card"]))
+    old = dict(arrays, card=np.array(json.dumps(dict(card, format_version=0))))
+    np.savez(tmp_path / "old.npz", **old)
+    with pytest.raises(ModelFileError, match="format version 0"):
+        WarmStartModel.load(tmp_path / "old.npz")
+    # tampered weights
+    tam = dict(arrays)
+    tam["W0"] = tam["W0"] + np.float32(1e-3)
+    np.savez(tmp_path / "tampered.npz", **tam)
+    with pytest.raises(ModelFileError, match="checksum"):
+        WarmStartModel.load(tmp_path / "tampered.npz")
+    with pytest.raises(ValueError, match="warm_start"):
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=42)
+    with pytest.raises(ModelFileError, match="file not found"):
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=str(tmp_path / "missing.npz"))
+
+
+def test_save_load_round_trip_gives_identical_predictions(tmp_path):
+    m = default_model()
+    m.save(tmp_path / "copy.npz")
+    m2 = WarmStartModel.load(tmp_path / "copy.npz")
+    X = np.random.default_rng(0).normal(size=(5, 11))
+    np.testing.assert_allclose(m.forward(X), m2.forward(X), rtol=1e-6)
+
+
+def test_coverage_reasons():
+    m = default_model()
+    p = SlewProblem(inertia=[0.6, 1.0, 0.8], qf=_axis_quat([0.3, -0.8, 0.5], 2.0))
+    assert m.covers(p) is None
+    assert "rate_max" in m.covers(p.replace(rate_max=0.5))
+    assert "torque_norm" in m.covers(p.replace(torque_norm=2))
+    assert "inertia" in m.covers(p.replace(inertia=[0.1, 1.0, 1.0]))
+    assert "angle" in m.covers(p.replace(qf=_axis_quat([1, 0, 0], 0.05)))
+    assert "sensor_target" in m.covers(SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=[0, 1, 0]))
+
+
+# --------------------------------------------------------------------------- solve() integration
+def test_solve_uses_the_learned_guess_by_default_and_records_it():
+    ok = 0
+    for r in _exact(6):
+        s = solve(r["problem"])
+        assert s.success
+        assert s.warm_start["covered"] is True and s.warm_start["model"]
+        if s.warm_start["succeeded"]:
+            ok += 1
+            assert s.guess.startswith("learned") and s.route.startswith("learned guess")
+            # the same optimum as the dataset's (multi-start / collocation-first) answer
+            assert s.tf == pytest.approx(r["tf"], rel=1e-7)
+            assert s.verification["replay"]["passed"]
+    assert ok >= 4
+
+
+def test_no_warm_start_and_uncovered_problems_take_the_classical_route():
+    r = _exact()[0]
+    s = solve(r["problem"], method="indirect", warm_start=None)
+    assert s.success and s.warm_start == {} and not s.route.startswith("learned")
+    p = SlewProblem.from_dict(r["problem"]).replace(rate_max=10.0)
+    s2 = solve(p, method="indirect")
+    assert s2.warm_start["covered"] is False and "rate_max" in s2.warm_start["reason"]
+
+
+def test_failed_learned_guess_falls_back_and_says_so():
+    class Wrong:
+        name = "wrong model"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):   # a structure that cannot be right: one switch on each axis at tf/2
+            return Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned")
+    r = _exact()[1]
+    s = solve(r["problem"], method="indirect", warm_start=Wrong())
+    assert s.warm_start["succeeded"] is False and s.warm_start["candidates"] >= 1
+    if s.success:
+        assert not s.guess.startswith("learned") and s.route.startswith("learned guess failed")
+
+
+def test_nearest_neighbour_model(tmp_path):
+    from training.warmstart.data import training_arrays
+    a = training_arrays([DATA])
+    nn = NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=3)
+    nn.save(tmp_path / "t.nn.npz")
+    nn2 = load_model(tmp_path / "t.nn.npz")
+    r = _exact()[5]
+    g = nn2.guess(r["problem"])
+    assert g.source == "nearest-neighbour[0]" and len(g.candidates) == 2
+    s = solve(r["problem"], method="indirect", warm_start=nn2)   # its own solution is in the table
+    assert s.success and s.guess == "nearest-neighbour[0]" and s.nit <= 3
+    assert s.tf == pytest.approx(r["tf"], rel=1e-9)
+
+
+def test_solvers_do_not_import_torch():
+    code = ("import sys, solvers; from solvers.warmstart import default_model; m = default_model();"
+            "from slew_env import SlewProblem; import numpy as np;"
+            "s = solvers.solve(SlewProblem(inertia=[0.6, 1, 0.8], qf=[0.6, 0.48, -0.64, 0.0]));"
+            "assert 'torch' not in sys.modules, 'torch imported'; print(s.success, s.guess)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+
+
+# --------------------------------------------------------------------------- training and CLI
+def test_training_is_reproducible_exports_and_resumes(tmp_path):
+    pytest.importorskip("torch")
+    from training.warmstart.train import train
+    s1 = train([DATA], tmp_path / "a", seed=3, epochs=4, progress_bar=False)
+    s2 = train([DATA], tmp_path / "b", seed=3, epochs=4, progress_bar=False)
+    m1, m2 = WarmStartModel.load(s1["model"]), WarmStartModel.load(s2["model"])
+    assert m1.card["sha256"] == m2.card["sha256"]
+    assert m1.card["training"]["n_exact_solutions"] == 69 and m1.card["training"]["n_train"] + m1.card["training"]["n_val"] == 69
+    for f in ("log.csv", "loss.png", "config.yaml", "model.md", "checkpoints/epoch_0004.pt"):
+        assert (tmp_path / "a" / f).exists(), f
+    # an interrupted run resumed from its last checkpoint equals the uninterrupted run
+    ck = {"checkpoint_every": 2}
+    s3 = train([DATA], tmp_path / "c", seed=3, epochs=6, progress_bar=False, overrides=ck)
+    s4 = train([DATA], tmp_path / "d", seed=3, epochs=6, progress_bar=False, overrides=ck)
+    os.remove(tmp_path / "d" / "checkpoints" / "epoch_0006.pt")      # "killed" after epoch 4
+    s4 = train([DATA], tmp_path / "d", seed=3, epochs=6, resume=True, progress_bar=False, overrides=ck)
+    assert WarmStartModel.load(s3["model"]).card["sha256"] == WarmStartModel.load(s4["model"]).card["sha256"]
+    lines = open(tmp_path / "d" / "log.csv").read().splitlines()
+    assert len(lines) == 7 and lines[0].startswith("epoch,lr,train_loss,val_loss")
+    # the exported model is usable
+    g = m1.guess(_exact()[0]["problem"])
+    assert g.source == "learned" and g.costate0.shape == (7,)
+
+
+def test_cli_train_and_evaluate(tmp_path):
+    pytest.importorskip("torch")
+    from training.cli import main
+    assert main(["train", "--data", DATA, "--out", str(tmp_path / "run"), "--epochs", "3", "--no-progress"]) == 0
+    model = tmp_path / "run" / "model.npz"
+    assert model.exists()
+    assert main(["evaluate", "--model", str(model), "--n", "3", "--baseline-n", "1", "--train-data", DATA,
+                 "--workers", "1", "--budget", "2", "--out", str(tmp_path / "ev"), "--no-progress"]) == 0
+    s = json.load(open(tmp_path / "ev" / "summary.json"))
+    assert s["learned"]["n"] == 3 and s["nearest-neighbour"]["n"] == 3 and s["eigenaxis"]["n"] == 1
+    assert s["inference_s_median"] < 0.01
+    assert "| learned |" in open(tmp_path / "ev" / "report.md").read()
+    assert (tmp_path / "ev" / "evaluation.png").exists()
+    assert main(["train", "--data", str(tmp_path / "missing.jsonl"), "--out", str(tmp_path / "x")]) == 2

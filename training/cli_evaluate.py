@@ -1,0 +1,33 @@
+"""``slew evaluate``: the warm-start model against the classical guesses on held-out problems."""
+from __future__ import annotations
+
+import os
+
+
+def add_arguments(p):
+    p.add_argument("--model", default=None, help="model file (default: the shipped model)")
+    p.add_argument("--family", default="full-attitude", help="task family of the held-out problems")
+    p.add_argument("--n", type=int, default=1000, help="held-out problems (default 1000)")
+    p.add_argument("--seed", type=int, default=20261122, help="seed of the held-out problems (fresh: not a data seed)")
+    p.add_argument("--train-data", nargs="*", default=None, metavar="FILE.jsonl",
+                   help="the model's training data: builds the nearest-neighbour baseline from it")
+    p.add_argument("--baseline-n", type=int, default=100,
+                   help="problems for the slow baselines: eigenaxis, random, collocation (default 100)")
+    p.add_argument("--budget", type=float, default=5.0, help="time budget per guess, seconds (default 5)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--out", "-o", default="runs/evaluate", help="output directory (report.md, results.jsonl, evaluation.png)")
+    p.add_argument("--no-progress", action="store_true")
+
+
+def run(args) -> int:
+    from training.warmstart.evaluate import evaluate
+    if args.n < 1:
+        raise ValueError(f"--n: must be ≥ 1, got {args.n}")
+    for path in args.train_data or []:
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"--train-data: no such file: {path}")
+    s = evaluate(args.family, args.n, args.seed, args.model, args.train_data, args.out, args.baseline_n,
+                 args.workers, args.budget, progress_bar=not args.no_progress)
+    with open(os.path.join(args.out, "report.md")) as f:
+        print(f.read())
+    return 0

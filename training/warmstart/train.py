@@ -1,0 +1,258 @@
+"""``slew train``: the warm-start network (torch), trained on canonical solutions, exported
+to the numpy format of ``solvers.warmstart``.
+
+The network is an MLP on the 11 canonical features with one output vector (layout in
+``solvers.warmstart.model.output_layout``): ``z'`` (6; loss ``|z/|z| - z*|²`` plus a small
+pull of ``|z|`` to 1), ``log(T/T_eig)`` (MSE), first-arc signs (3 logits, BCE), switch
+counts per axis (3 × (K+1) logits, cross-entropy) and switch instants as fractions of
+``T`` (3 × K sigmoids, MSE on the slots a problem uses). Loss weights, sizes and the
+schedule come from a YAML config (``configs/full-attitude.yaml``).
+
+Run directory: ``config.yaml`` (the resolved config), ``log.csv`` (per epoch: losses and
+validation metrics), ``loss.png``, ``checkpoints/epoch_NNNN.pt`` (resumable with
+``--resume``), ``model.npz`` (the export) and ``MODEL_CARD.md``. Reproducible from the
+seed: one torch thread, seeded shuffles and initialisation.
+"""
+from __future__ import annotations
+
+import csv
+import glob
+import json
+import math
+import os
+import platform
+import time
+
+import numpy as np
+import yaml
+
+from .data import split, training_arrays
+
+DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
+
+
+def load_config(path=None, overrides=None) -> dict:
+    with open(path or DEFAULT_CONFIG) as f:
+        cfg = yaml.safe_load(f) or {}
+    for k, v in (overrides or {}).items():
+        cfg[k] = v
+    for key in ("max_switches", "hidden", "epochs", "batch_size", "learning_rate"):
+        if key not in cfg:
+            raise ValueError(f"config: missing key {key!r}")
+    if int(cfg["epochs"]) < 1:
+        raise ValueError(f"config.epochs: must be ≥ 1, got {cfg['epochs']}")
+    return cfg
+
+
+def _net(cfg, torch):
+    from solvers.warmstart.features import N_FEATURES
+    from solvers.warmstart.model import output_size
+    act = {"silu": torch.nn.SiLU, "tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[cfg.get("activation", "silu")]
+    layers, n_in = [], N_FEATURES
+    for h in cfg["hidden"]:
+        layers += [torch.nn.Linear(n_in, int(h)), act()]
+        n_in = int(h)
+    layers.append(torch.nn.Linear(n_in, output_size(int(cfg["max_switches"]))))
+    return torch.nn.Sequential(*layers)
+
+
+def _losses(out, batch, cfg, torch):
+    from solvers.warmstart.model import output_layout
+    K = int(cfg["max_switches"])
+    L = output_layout(K)
+    F = torch.nn.functional
+    z = out[:, slice(*L["z"])]
+    nz = z.norm(dim=1, keepdim=True).clamp_min(1e-8)
+    l_z = ((z / nz - batch["Z"]) ** 2).sum(dim=1).mean() + 0.01 * ((nz - 1.0) ** 2).mean()
+    l_T = ((out[:, slice(*L["log_T_ratio"])][:, 0] - batch["log_T_ratio"]) ** 2).mean()
+    l_u = F.binary_cross_entropy_with_logits(out[:, slice(*L["u_first_logit"])], (batch["U"] > 0).float())
+    cl = out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1)
+    l_c = F.cross_entropy(cl.reshape(-1, K + 1), batch["counts"].reshape(-1))
+    tl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
+    mask = torch.isfinite(batch["F"])
+    tgt = torch.where(mask, batch["F"], torch.zeros_like(batch["F"]))
+    l_t = (((tl - tgt) ** 2) * mask).sum() / mask.sum().clamp_min(1)
+    w = cfg.get("loss_weights", {})
+    total = (w.get("z", 1.0) * l_z + w.get("log_T", 1.0) * l_T + w.get("u_first", 0.2) * l_u
+             + w.get("counts", 0.2) * l_c + w.get("times", 1.0) * l_t)
+    with torch.no_grad():
+        cos = ((z / nz) * batch["Z"]).sum(dim=1)
+        metrics = {
+            "z_angle_deg_median": float(torch.rad2deg(torch.arccos(cos.clamp(-1, 1))).median()),
+            "T_rel_err_median": float((out[:, 6] - batch["log_T_ratio"]).abs().median()),
+            "u_first_acc": float(((out[:, slice(*L["u_first_logit"])] >= 0) == (batch["U"] > 0)).all(dim=1).float().mean()),
+            "structure_acc": float((cl.argmax(dim=2) == batch["counts"]).all(dim=1).float().mean()),
+        }
+    parts = {k: float(v.detach()) for k, v in (("z", l_z), ("log_T", l_T), ("u_first", l_u), ("counts", l_c), ("times", l_t))}
+    return total, parts, metrics
+
+
+def _tensors(arrays, idx, torch):
+    return {"X": torch.tensor(arrays["X"][idx], dtype=torch.float32),
+            "Z": torch.tensor(arrays["Z"][idx], dtype=torch.float32),
+            "log_T_ratio": torch.tensor(arrays["log_T_ratio"][idx], dtype=torch.float32),
+            "U": torch.tensor(arrays["U"][idx], dtype=torch.float32),
+            "counts": torch.tensor(arrays["counts"][idx], dtype=torch.int64),
+            "F": torch.tensor(arrays["F"][idx], dtype=torch.float32)}
+
+
+def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progress_bar=True,
+          export_path=None, overrides=None) -> dict:
+    """Train, write the run directory, export ``model.npz``; returns a summary dict."""
+    import torch
+    torch.set_num_threads(1)
+    torch.manual_seed(seed)
+    cfg = load_config(config, overrides)
+    out = os.fspath(out)
+    if epochs is not None:
+        cfg["epochs"] = int(epochs)
+    os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
+    data_paths = [os.fspath(p) for p in data_paths]
+    arrays = training_arrays(data_paths, int(cfg["max_switches"]), family=cfg.get("family"))
+    N = arrays["X"].shape[0]
+    if N < 10:
+        raise ValueError(f"data: only {N} exact solutions in {data_paths}; need at least 10")
+    tr_idx, va_idx = split(arrays, float(cfg.get("val_fraction", 0.1)), seed)
+    x_mean = arrays["X"][tr_idx].mean(axis=0)
+    x_std = np.maximum(arrays["X"][tr_idx].std(axis=0), 1e-6)
+    train_t, val_t = _tensors(arrays, tr_idx, torch), _tensors(arrays, va_idx, torch)
+    for t in (train_t, val_t):
+        t["X"] = (t["X"] - torch.tensor(x_mean, dtype=torch.float32)) / torch.tensor(x_std, dtype=torch.float32)
+    net = _net(cfg, torch)
+    opt = torch.optim.AdamW(net.parameters(), lr=float(cfg["learning_rate"]), weight_decay=float(cfg.get("weight_decay", 0.0)))
+    E = int(cfg["epochs"])
+    lr0, lr1 = float(cfg["learning_rate"]), float(cfg.get("lr_final", cfg["learning_rate"]))
+    start_epoch = 0
+    log_rows = []
+    ckpts = sorted(glob.glob(os.path.join(out, "checkpoints", "epoch_*.pt")))
+    if resume and ckpts:
+        st = torch.load(ckpts[-1], weights_only=False)
+        net.load_state_dict(st["net"])
+        opt.load_state_dict(st["opt"])
+        torch.set_rng_state(st["rng"])
+        start_epoch = int(st["epoch"])
+        log_rows = st["log"]
+    with open(os.path.join(out, "config.yaml"), "w") as f:
+        yaml.safe_dump(dict(cfg, seed=seed, data=data_paths), f, sort_keys=False)
+    bs = int(cfg["batch_size"])
+    n_tr = len(tr_idx)
+    bar = None
+    if progress_bar:
+        from tqdm import tqdm
+        bar = tqdm(total=E, initial=start_epoch, desc="slew train", unit="epoch")
+    t0 = time.perf_counter()
+    for epoch in range(start_epoch, E):
+        frac = epoch / max(1, E - 1)
+        lr = lr1 + 0.5 * (lr0 - lr1) * (1 + math.cos(math.pi * frac)) if cfg.get("lr_schedule") == "cosine" else lr0
+        for g in opt.param_groups:
+            g["lr"] = lr
+        net.train()
+        perm = torch.randperm(n_tr)
+        tot = 0.0
+        for b in range(0, n_tr, bs):
+            i = perm[b:b + bs]
+            batch = {k: v[i] for k, v in train_t.items()}
+            loss, _, _ = _losses(net(batch["X"]), batch, cfg, torch)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            tot += float(loss.detach()) * len(i)
+        net.eval()
+        with torch.no_grad():
+            vl, parts, met = _losses(net(val_t["X"]), val_t, cfg, torch) if len(va_idx) else (torch.tensor(math.nan), {}, {})
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": tot / n_tr, "val_loss": float(vl),
+               **{f"val_{k}": v for k, v in parts.items()}, **{f"val_{k}": v for k, v in met.items()}}
+        log_rows.append(row)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
+                            struct=f"{met.get('structure_acc', 0):.3f}")
+        if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
+            torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
+                        "epoch": epoch + 1, "log": log_rows}, os.path.join(out, "checkpoints", f"epoch_{epoch + 1:04d}.pt"))
+    if bar is not None:
+        bar.close()
+    wall = time.perf_counter() - t0
+    _write_log(out, log_rows)
+    final = log_rows[-1]
+    card_training = {
+        "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
+        "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
+        "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
+        "torch": torch.__version__, "python": platform.python_version(),
+        "val_metrics": {k[4:]: final[k] for k in final if k.startswith("val_")},
+    }
+    path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
+    summary = dict(card_training, model=path, run_dir=out)
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+    return summary
+
+
+def export(net, cfg, x_mean, x_std, training_info, path):
+    """Write the numpy model file (and ``MODEL_CARD.md`` next to it)."""
+    from solvers.warmstart.model import WarmStartModel, output_layout
+    import solvers
+    lin = [m for m in net if hasattr(m, "weight")]
+    weights = [(m.weight.detach().numpy().T.astype(np.float32), m.bias.detach().numpy().astype(np.float32)) for m in lin]
+    card = {"name": f"learned warm start ({cfg.get('family')})", "family": cfg.get("family"),
+            "activation": cfg.get("activation", "silu"), "max_switches": int(cfg["max_switches"]),
+            "output_layout": {k: list(v) for k, v in output_layout(int(cfg["max_switches"])).items()},
+            "hidden": list(cfg["hidden"]), "domain": cfg.get("domain", {}), "training": training_info,
+            "slewopt_version": getattr(solvers, "__version__", "0.1.0"),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    m = WarmStartModel([(W.astype(np.float64), b.astype(np.float64)) for W, b in weights], x_mean, x_std, card)
+    m.weights = weights
+    m.save(path)
+    write_card_md(m.card, os.path.splitext(path)[0] + ".md")
+    return path
+
+
+def write_card_md(card, path):
+    t = card.get("training", {})
+    vm = t.get("val_metrics", {})
+    n_params = None
+    lines = [f"# Model card: {card.get('name')}", "",
+             f"- format: {card.get('format')} v{card.get('format_version')}, sha256 of the weights `{card.get('sha256')}`",
+             f"- network: MLP {card.get('hidden')} ({card.get('activation')}), {card.get('max_switches')} switch slots per axis",
+             f"- covers (domain): `{json.dumps(card.get('domain'))}`",
+             f"- training family: {t.get('family')}; data files: {', '.join(t.get('data', []))}",
+             f"- dataset: {t.get('n_records')} records, {t.get('n_exact_solutions')} exact solutions "
+             f"({t.get('n_train')} train / {t.get('n_val')} validation)",
+             f"- epochs {t.get('epochs')}, seed {t.get('seed')}, training wall time {t.get('train_wall_time_s')} s, torch {t.get('torch')}",
+             "", "Validation metrics (held-out 10 % of the exact solutions):", ""]
+    for k, v in vm.items():
+        lines.append(f"- {k}: {v:.6g}" if isinstance(v, float) else f"- {k}: {v}")
+    if card.get("evaluation"):
+        lines += ["", "Evaluation (`slew evaluate`):", "", card["evaluation"]]
+    del n_params
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+def _write_log(out, rows):
+    keys = list(rows[0].keys())
+    with open(os.path.join(out, "log.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        ep = [r["epoch"] for r in rows]
+        fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
+        ax[0].semilogy(ep, [r["train_loss"] for r in rows], label="train")
+        ax[0].semilogy(ep, [r["val_loss"] for r in rows], label="validation")
+        ax[0].set_xlabel("epoch")
+        ax[0].set_ylabel("loss")
+        ax[0].legend()
+        ax[1].plot(ep, [r.get("val_structure_acc", np.nan) for r in rows], label="structure accuracy")
+        ax[1].plot(ep, [r.get("val_u_first_acc", np.nan) for r in rows], label="first-sign accuracy")
+        ax[1].set_xlabel("epoch")
+        ax[1].legend()
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "loss.png"), dpi=90)
+        plt.close(fig)
+    except Exception:   # noqa: BLE001 - a missing plot must not lose the trained model
+        pass
