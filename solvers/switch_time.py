@@ -45,6 +45,7 @@ class SwitchTimeResult:
     nit: int
     nfev: int
     history: list = field(default_factory=list)
+    jacobian: object = None     # the last Jacobian, in the result's switch order
 
     @property
     def T(self):
@@ -125,8 +126,13 @@ def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter
             bvp.rtol, bvp.atol = fine
         if not first.success:
             return first
-        again = _solve_switch_times(bvp, first.z, first.structure, first.T, tol=tol, max_iter=max_iter,
-                                    max_step=max_step)
+        # at the problem's tolerance the coarse Jacobian is still accurate to ~coarse_rtol, so
+        # chord steps (residuals only, no sensitivities) converge in one or two iterations;
+        # full Newton if they do not
+        again = _chord(bvp, first, tol) if first.jacobian is not None else None
+        if again is None or not again.success:
+            again = _solve_switch_times(bvp, first.z, first.structure, first.T, tol=tol, max_iter=max_iter,
+                                        max_step=max_step)
         again.nit += first.nit
         again.nfev += first.nfev
         return again
@@ -167,11 +173,13 @@ def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max
             dx *= max_step / big
         accepted = False
         alpha = 1.0
+        Jt = None
         while alpha > 1e-8:
             xt = x + alpha * dx
             zt, tt, Tt = split(xt)
             if np.all(tt >= 0.0) and np.all(tt <= Tt) and Tt > 0.0:
-                rt, _ = _residual(bvp, zt, tt, Tt, st, False)
+                # the full step is usually accepted: evaluate its Jacobian with it
+                rt, Jt = _residual(bvp, zt, tt, Tt, st, alpha == 1.0)
                 nfev += 1
                 if rt is not None and float(rt @ rt) < (1 - 1e-4 * alpha) * phi:
                     accepted = True
@@ -181,8 +189,11 @@ def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max
             msg = "line search failed"
             break
         x = xt
-        r, Jm = _residual(bvp, *split(x), st, True)
-        nfev += 1
+        if Jt is not None:
+            r, Jm = rt, Jt
+        else:
+            r, Jm = _residual(bvp, *split(x), st, True)
+            nfev += 1
         if r is None:
             msg = "propagation failed"
             break
@@ -191,8 +202,40 @@ def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max
     order = np.argsort(times, kind="stable")
     res_st = Structure(st.signs0.copy(), st.axes[order].copy(), times[order].copy())
     d = np.diff(np.concatenate([[0.0], times[order], [T]]))
+    jac = None
+    if Jm is not None:   # rows and columns in the sorted switch order of res_st
+        ro = np.concatenate([[0], 1 + order, np.arange(1 + n, 1 + n + 6)])
+        co = np.concatenate([np.arange(6), 6 + order, [6 + n]])
+        jac = Jm[np.ix_(ro, co)]
     return SwitchTimeResult(ok, msg, z, d, res_st, float(np.max(np.abs(r))) if r is not None else np.inf,
-                            nit, nfev, hist)
+                            nit, nfev, hist, jac)
+
+
+def _chord(bvp, first: SwitchTimeResult, tol, max_iter=4):
+    """Chord iterations from a converged coarse result, with its Jacobian kept fixed."""
+    st = first.structure
+    n = st.n
+    x = np.concatenate([first.z, st.times, [first.T]])
+    J = first.jacobian
+    nfev = 0
+    hist = []
+    for it in range(max_iter + 1):
+        r, _ = _residual(bvp, x[:6], x[6:6 + n], float(x[-1]), st, False)
+        nfev += 1
+        if r is None:
+            return None
+        rn = float(np.max(np.abs(r)))
+        hist.append(rn)
+        if rn < tol:
+            times = x[6:6 + n]
+            order = np.argsort(times, kind="stable")
+            res_st = Structure(st.signs0.copy(), st.axes[order].copy(), times[order].copy())
+            d = np.diff(np.concatenate([[0.0], times[order], [x[-1]]]))
+            return SwitchTimeResult(True, "converged", x[:6].copy(), d, res_st, rn, it, nfev, hist, J)
+        if it == max_iter or (len(hist) > 1 and rn > 0.5 * hist[-2]):
+            return None
+        x = x + np.linalg.lstsq(J, -r, rcond=1e-13)[0]
+    return None
 
 
 def structure_from_trajectory(t, S, graze=0.0):

@@ -101,6 +101,13 @@ def ext_rhs(y, u, J):
     ``λ̇q = ½ λq ⊗ [0, ω]`` is the same right multiplication as ``q̇``.
     """
     f = np.empty(NY)
+    ext_rhs_into(y, u[0], u[1], u[2], J, f)
+    return f
+
+
+@njit(cache=True)
+def ext_rhs_into(y, u0, u1, u2, J, f):
+    """``ext_rhs`` written into ``f`` (no allocation: the integrator's inner loop)."""
     q0, q1, q2, q3 = y[0], y[1], y[2], y[3]
     w0, w1, w2 = y[4], y[5], y[6]
     l0, l1, l2, l3 = y[7], y[8], y[9], y[10]
@@ -108,7 +115,7 @@ def ext_rhs(y, u, J):
     c1 = J[0] - J[2]
     c2 = J[1] - J[0]
     f[0], f[1], f[2], f[3], f[4], f[5], f[6] = state_rhs_scalar(
-        q0, q1, q2, q3, w0, w1, w2, u[0], u[1], u[2], J[0], J[1], J[2])
+        q0, q1, q2, q3, w0, w1, w2, u0, u1, u2, J[0], J[1], J[2])
     f[7], f[8], f[9], f[10], _, _, _ = state_rhs_scalar(
         l0, l1, l2, l3, w0, w1, w2, 0.0, 0.0, 0.0, J[0], J[1], J[2])
     # Im(q* ⊗ λq) = q0 lv - l0 qv - qv × lv
@@ -125,13 +132,20 @@ def ext_rhs(y, u, J):
     f[11] = -0.5 * im0 - g0
     f[12] = -0.5 * im1 - g1
     f[13] = -0.5 * im2 - g2
-    return f
 
 
 @njit(cache=True)
 def ext_jac(y, J, dudl):
     """``∂ẏ/∂y`` (14x14) for a torque whose dependence on λω is ``dudl``."""
     A = np.zeros((NY, NY))
+    ext_jac_into(y, J, dudl, A)
+    return A
+
+
+@njit(cache=True)
+def ext_jac_into(y, J, dudl, A):
+    """``ext_jac`` into ``A``. Writes the same entries on every call, so an ``A`` that
+    started as zeros can be reused (the integrator's work array)."""
     q0, q1, q2, q3 = y[0], y[1], y[2], y[3]
     w0, w1, w2 = y[4], y[5], y[6]
     l0, l1, l2, l3 = y[7], y[8], y[9], y[10]
@@ -218,19 +232,20 @@ def ext_jac(y, J, dudl):
     A[12, 13] = c2 * w0 / J[2]
     A[13, 11] = c0 * w1 / J[0]
     A[13, 12] = c1 * w0 / J[1]
-    return A
 
 
 @njit(cache=True)
-def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out):
-    """Derivative of ``[y, Φ]`` (Φ row-major 14 x m), written into ``out``."""
+def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out, A):
+    """Derivative of ``[y, Φ]`` (Φ row-major 14 x m), written into ``out``; ``A`` is a
+    14x14 work array that started as zeros (see ``ext_jac_into``)."""
     y = Y[:NY]
+    if mode == MODE_BANG and m == 0:   # a bang-bang arc without sensitivities: no allocation
+        ext_rhs_into(y, umax[0] * signs[0], umax[1] * signs[1], umax[2] * signs[2], J, out)
+        return
     u, dudl = control(y, J, umax, mode, p, eps, signs)
-    f = ext_rhs(y, u, J)
-    for i in range(NY):
-        out[i] = f[i]
+    ext_rhs_into(y, u[0], u[1], u[2], J, out)
     if m > 0:
-        A = ext_jac(y, J, dudl)
+        ext_jac_into(y, J, dudl, A)
         # Φ̇ = A Φ; A is about half zeros, and the BLAS call costs more than it saves here
         for i in range(NY):
             base = NY + i * m
@@ -248,7 +263,7 @@ def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out):
 def full_rhs(Y, m, J, umax, mode, p, eps, signs):
     """Derivative of ``[y, Φ]`` (Φ row-major 14 x m)."""
     out = np.empty(NY + NY * m)
-    full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out)
+    full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out, np.zeros((NY, NY)))
     return out
 
 
@@ -258,6 +273,7 @@ def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0):
     n = Y.shape[0]
     K = np.empty((13, n))
     Ys = np.empty(n)
+    A = np.zeros((NY, NY))
     K[0] = K0
     for s in range(1, _NS):
         for i in range(n):
@@ -267,14 +283,14 @@ def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0):
                 if a != 0.0:
                     acc += a * K[j, i]
             Ys[i] = Y[i] + h * acc
-        full_rhs_into(Ys, m, J, umax, mode, p, eps, signs, K[s])
+        full_rhs_into(Ys, m, J, umax, mode, p, eps, signs, K[s], A)
     Ynew = np.empty(n)
     for i in range(n):
         acc = 0.0
         for j in range(_NS):
             acc += _B[j] * K[j, i]
         Ynew[i] = Y[i] + h * acc
-    full_rhs_into(Ynew, m, J, umax, mode, p, eps, signs, K[12])
+    full_rhs_into(Ynew, m, J, umax, mode, p, eps, signs, K[12], A)
     return Ynew, K
 
 
@@ -361,11 +377,10 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
             continue
         # event check: the arc's sign must stay consistent with u = -umax sign(S)
         if mode == MODE_BANG and detect:
-            Snew = switching(Ynew, J)
             first_tau = h
             first_ax = -1
             for i in range(3):
-                if signs[i] * Snew[i] > 0.0:
+                if signs[i] * (Ynew[11 + i] / J[i]) > 0.0:
                     tau = _locate_switch(Y, h, m, J, umax, signs, K0, i)
                     if tau < first_tau:
                         first_tau = tau

@@ -20,8 +20,21 @@ DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
 
 
 def load_model(path):
-    """A warm-start model from a file: ``.npz`` (learned) or ``.nn.npz`` (nearest-neighbour table)."""
-    path = os.fspath(path)
+    """A warm-start model from a file: ``.npz`` (learned) or ``.nn.npz`` (nearest-neighbour table).
+
+    Loaded models are cached per (path, modification time, size): solving many problems with
+    ``warm_start=PATH`` reads the file once."""
+    path = os.path.abspath(os.fspath(path))
+    try:
+        st = os.stat(path)
+        key = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        key = None
+    return _load_cached(path, key)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_cached(path, key):
     if path.endswith(".nn.npz"):
         return NearestNeighbourModel.load(path)
     return WarmStartModel.load(path)

@@ -27,6 +27,7 @@ import hashlib
 import json
 import math
 import os
+import time
 from dataclasses import dataclass
 from typing import Optional
 
@@ -227,9 +228,11 @@ class WarmStartModel:
         why = self.covers(problem)
         if why:
             raise ValueError(f"problem not covered by {self.name}: {why}")
+        t0 = time.perf_counter()
         cf = canonical_form(problem)
         pr = self.predict_canonical(cf.x, cf.T_eig)
         c0, tf, sw, uf = solution_from_canonical(problem, cf, pr.z, pr.T, pr.times, pr.u_first)
+        self.last_inference_s = time.perf_counter() - t0   # canonical form + network + mapping back
         g = Guess(c0, tf, sw, uf, source="learned")
         if propagate:
             prop = _propagated_structure(problem, c0, tf)
