@@ -282,12 +282,13 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
        optimum is not bang-bang), the collocation answer itself, verified by its own
        checks and labelled as such in ``route`` and ``message``;
     4. if collocation fails, the classical indirect multi-start.
-    Keep-out cones and pointing-only targets go to collocation (step 2 without refinement).
+    Keep-out cones go to collocation (step 2 without refinement); pointing-only targets
+    without cones are refined like full-attitude ones (with the roll transversality).
     """
     t0 = time.perf_counter()
     spent = lambda: time.perf_counter() - t0  # noqa: E731
     budget = float(options.get("time_budget", 20.0))
-    indirect_ok = not prob.cones and prob.qf is not None
+    indirect_ok = not prob.cones
     tried_guess = None
     if guess is not None and indirect_ok:
         opts = dict(options, max_candidates=len(guess.all()), min_candidates=1)
@@ -338,10 +339,10 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     if prob.cones:
         raise ValueError("cones: keep-out cones are not supported by the indirect solvers yet "
                          f"({len(prob.cones)} given); use method='auto' or 'collocation'")
-    if prob.qf is None:
-        raise ValueError("sensor_target: pointing-only targets are not supported by the indirect "
-                         "solvers yet; use method='auto' or 'collocation', or give a full attitude qf")
     if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
+        if prob.qf is None:
+            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
+                             "nothing to solve")
         raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
     segments = int(options.get("segments", 4 if method == "multiple-shooting" else 1))
     if segments < 1:
@@ -362,10 +363,11 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         kw["atol"] = float(options["atol"])
     bvp = AttitudeBVP(prob, **kw)
     # the eigenaxis slew is what spacecraft fly today: an extremal slower than it is a
-    # local optimum, never the answer (rest-to-rest problems only)
+    # local optimum, never the answer (rest-to-rest problems only; for a pointing-only
+    # target the eigenaxis slew to the reference attitude, one feasible way to point)
     baseline = math.nan
     if prob.is_rest_to_rest:
-        baseline = eigenaxis_slew(prob, n_grid=1000).tf / bvp.tau
+        baseline = eigenaxis_slew(bvp.ref_problem, n_grid=1000).tf / bvp.tau
     deadline = t_start + budget
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
 

@@ -17,6 +17,21 @@ Unknowns and gauge (CONVENTIONS.md):
 
 Boundary residuals: ``s · Im(qf* ⊗ q(tf))`` with ``s`` the sign of the scalar part
 (``q`` and ``-q`` are one attitude) and ``ω(tf) - ωf``.
+
+Pointing-only targets (``sensor_target`` given, roll about the sensor free). The final
+attitude must put the body sensor ``s`` on the inertial target ``d``: ``R(q)ᵀ d = s``, two
+conditions, written ``e₁·R(q)ᵀd = 0``, ``e₂·R(q)ᵀd = 0`` with ``e₁, e₂ ⊥ s`` (the antipodal
+solution ``R(q)ᵀd = -s`` is rejected by the verification). The third attitude condition is
+the transversality condition of the free roll: the terminal set is the circle
+``q ⊗ exp(φ/2 [0, s])``, whose tangent is ``q ⊗ [0, s]``, and ``λq(tf)`` must be orthogonal
+to it::
+
+    λq(tf) · (q(tf) ⊗ [0, s]) = Im(q(tf)* ⊗ λq(tf)) · s = μ(tf) · s = 0,
+
+i.e. no costate on the rotation about the boresight at the end (the gauge component along
+``q`` drops out). With ``ω(tf) = ωf`` these are again six conditions. Guesses and the
+eigenaxis baseline use the reference attitude ``qf_ref``: the shortest rotation that
+takes the start sensor direction onto the target, applied to ``q0``.
 """
 from __future__ import annotations
 
@@ -26,7 +41,7 @@ from typing import Optional
 
 import numpy as np
 
-from slew_env.core.quaternion import qmul, qconj
+from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
 from .core import attitude_flow as af
 
 NY = af.NY
@@ -78,9 +93,6 @@ class AttitudeBVP:
 
     def __init__(self, problem, mode="bang", p=None, eps=1e-2, rtol=1e-12, atol=1e-13,
                  max_switches=200):
-        if problem.qf is None:
-            raise ValueError("sensor_target: pointing-only targets are not supported by the "
-                             "indirect solver yet; give a full attitude qf")
         if problem.cones:
             raise ValueError("cones: the indirect solver does not handle keep-out cones yet")
         self.problem = problem
@@ -90,7 +102,24 @@ class AttitudeBVP:
         self.J = problem.inertia / Jmax
         self.umax = problem.torque_max / umax
         self.q0 = problem.q0.copy()
-        self.qf = problem.qf.copy()
+        self.pointing = problem.qf is None
+        if self.pointing:
+            self.s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+            self.d_i = np.asarray(problem.sensor_target, float) / np.linalg.norm(problem.sensor_target)
+            r = qfrom_two_vectors(qrotate(self.q0, self.s_b), self.d_i)
+            self.qf = qmul(r, self.q0)
+            self.qf /= np.linalg.norm(self.qf)
+            # e1, e2: an orthonormal basis of the plane orthogonal to the sensor
+            k = int(np.argmin(np.abs(self.s_b)))
+            e = np.zeros(3)
+            e[k] = 1.0
+            e1 = np.cross(self.s_b, e)
+            e1 /= np.linalg.norm(e1)
+            self._e = np.array([e1, np.cross(self.s_b, e1)])
+            self.ref_problem = problem.replace(qf=self.qf, sensor_target=None)
+        else:
+            self.qf = problem.qf.copy()
+            self.ref_problem = problem
         self.w0 = problem.omega0 * self.tau
         self.wf = problem.omegaf * self.tau
         self.set_mode(mode, p, eps)
@@ -184,6 +213,8 @@ class AttitudeBVP:
         return FlowOut(y, Phi, f, ok, msg, s_end, n_sw, steps)
 
     def terminal(self, y, T):
+        if self.pointing:
+            return self._terminal_pointing(y)
         dq = qmul(qconj(self.qf), y[0:4])
         s = 1.0 if dq[0] >= 0.0 else -1.0
         r = np.empty(6)
@@ -193,6 +224,53 @@ class AttitudeBVP:
         d[0:3, 0:4] = s * self._dres_q
         d[3:6, 4:7] = np.eye(3)
         return r, d, np.zeros(6)
+
+    def _terminal_pointing(self, y):
+        """Pointing (2), roll transversality (1) and rate (3) residuals with their gradients."""
+        q0, v = y[0], y[1:4]
+        l0, lv = y[7], y[8:11]
+        d, sb = self.d_i, self.s_b
+        # d_b = R(q)ᵀ d = (q0² - v·v) d + 2 v (v·d) - 2 q0 (v × d)
+        vd = float(v @ d)
+        db = (q0 * q0 - v @ v) * d + 2.0 * v * vd - 2.0 * q0 * np.cross(v, d)
+        ddb = np.empty((3, 4))
+        ddb[:, 0] = 2.0 * q0 * d - 2.0 * np.cross(v, d)
+        for j in range(3):
+            ej = np.zeros(3)
+            ej[j] = 1.0
+            ddb[:, 1 + j] = -2.0 * v[j] * d + 2.0 * ej * vd + 2.0 * v * d[j] - 2.0 * q0 * np.cross(ej, d)
+        r = np.empty(6)
+        D = np.zeros((6, NY))
+        r[0:2] = self._e @ db
+        D[0:2, 0:4] = self._e @ ddb
+        # Im(q* ⊗ λq) · s with Im(q* ⊗ λq) = q0 lv - l0 v - v × lv
+        im = q0 * lv - l0 * v - np.cross(v, lv)
+        r[2] = float(im @ sb)
+        D[2, 0] = float(lv @ sb)
+        D[2, 1:4] = -l0 * sb - np.cross(lv, sb)
+        D[2, 7] = -float(v @ sb)
+        D[2, 8:11] = q0 * sb - np.cross(sb, v)
+        r[3:6] = y[4:7] - self.wf
+        D[3:6, 4:7] = np.eye(3)
+        return r, D, np.zeros(6)
+
+    def pointing_error(self, q):
+        """Angle (rad) between the sensor's inertial direction and the target."""
+        si = qrotate(q, self.s_b)
+        # atan2 keeps full precision for small angles (acos near 1 resolves only ~1e-8 rad)
+        return math.atan2(float(np.linalg.norm(np.cross(si, self.d_i))), float(si @ self.d_i))
+
+    def attitude_error(self, q):
+        """Boundary attitude error (rad): pointing error, or the angle of ``qf* ⊗ q``."""
+        if self.pointing:
+            return self.pointing_error(q)
+        from slew_env.core.quaternion import qerror_angle
+        return float(qerror_angle(q, self.qf))
+
+    def roll_transversality(self, y):
+        """``|μ(tf)·s| / |μ(tf)|``: the relative costate on the free roll (0 at an extremal)."""
+        im = y[0] * y[8:11] - y[7] * y[1:4] - np.cross(y[1:4], y[8:11])
+        return abs(float(im @ self.s_b)) / max(float(np.linalg.norm(im)), 1e-300)
 
     # ----------------------------------------------------------------- helpers
     def record(self, z, T, n_max=20000, hmax=np.inf):

@@ -101,7 +101,7 @@ def eigenaxis_acceleration(J, umax, p, n):
 
 def eigenaxis_guess(bvp, long_way=False) -> Guess:
     """Seed report eqs. 39–44, generalised to any inertia and bound (nondimensional)."""
-    n, th = eigenaxis_axis_angle(bvp.problem)
+    n, th = eigenaxis_axis_angle(bvp.ref_problem)   # pointing-only: to the reference attitude
     if long_way:
         n, th = -n, 2.0 * math.pi - th
     acc = eigenaxis_acceleration(bvp.J, bvp.umax, bvp.problem.torque_norm, n)
@@ -140,6 +140,8 @@ def problem_symmetries(problem, tol=1e-12):
 def symmetric_images(bvp, z, T):
     """Images of nondimensional ``(z, T)`` under the problem's symmetries (identity excluded)."""
     imgs = []
+    if getattr(bvp, "pointing", False):   # the images of a pointing target are other targets
+        return imgs
     for A in problem_symmetries(bvp.problem):
         if np.allclose(A, np.eye(3)):
             continue
@@ -170,7 +172,7 @@ def structure_templates(bvp, z, T, rng, max_templates=12, inner=(0.25, 0.4)):
     eigenaxis time (per-axis optima are typically 5-15 % faster). The costate guess is
     ``z`` plus a small seeded perturbation, which breaks the symmetry of the eigenaxis.
     """
-    n, _ = eigenaxis_axis_angle(bvp.problem)
+    n, _ = eigenaxis_axis_angle(bvp.ref_problem)
     base = np.where(n >= 0, 1.0, -1.0)
     weak = [i for i in range(3) if abs(n[i]) < 0.15]
     sign_sets = [base]

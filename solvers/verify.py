@@ -3,7 +3,10 @@
 Checks (each a dict ``{value, tol, passed}`` in ``SlewSolution.verification``):
 
 * ``boundary_attitude_error`` — angle (rad) of ``qf* ⊗ q(tf)`` from the event-driven
-  propagation of the returned costates (no switch instants imposed);
+  propagation of the returned costates (no switch instants imposed); for a pointing-only
+  target, the angle between the sensor's direction and the target;
+* ``roll_transversality`` — pointing-only targets: ``|μ(tf)·s| / |μ(tf)|``, the relative
+  attitude costate about the free boresight at ``tf`` (transversality, must be ≤ tol);
 * ``boundary_rate_error`` — ``‖ω(tf) - ωf‖`` (problem units);
 * ``hamiltonian_drift`` — ``max |H(t) - H(0)| / |H(0)|`` along the dense samples;
 * ``normality`` — ``H < 0`` (a normal extremal, ``λ0 > 0``); value is ``H(0)`` in the
@@ -28,7 +31,6 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from slew_env.core.dynamics import propagate
-from slew_env.core.quaternion import qerror_angle
 from .core import attitude_flow as af
 
 DEFAULT_TOLS = {
@@ -40,6 +42,7 @@ DEFAULT_TOLS = {
     "switch_structure": 1e-9,
     "rate_limit": 1.0 + 1e-9,
     "replay": 1e-7,
+    "roll_transversality": 1e-8,
 }
 
 
@@ -95,12 +98,15 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
         checks["propagation"] = make_check(1.0, 0.0, False)
         return False, checks, f"propagation failed: {tr.message}", tr
     yT = tr.y[-1]
-    att = float(qerror_angle(yT[0:4], bvp.qf))
+    att = bvp.attitude_error(yT[0:4])
     rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
     checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
                                                att <= tols["boundary_attitude_error"])
     checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                            rate_nd <= tols["boundary_rate_error"])
+    if bvp.pointing:
+        tv = bvp.roll_transversality(yT)
+        checks["roll_transversality"] = make_check(tv, tols["roll_transversality"], tv <= tols["roll_transversality"])
     H = af.hamiltonian_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
     H0 = H[0]
     drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))
@@ -121,7 +127,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
                                                 ok_axes and dev <= tols["switch_structure"])
         sw = [tr.switch_t[tr.switch_axis == i] for i in range(3)]
         x = replay_bang_bang(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw, tr.signs0, T)
-        rep = max(float(qerror_angle(x[0:4], bvp.qf)), float(np.linalg.norm(x[4:7] - bvp.wf)))
+        rep = max(bvp.attitude_error(x[0:4]), float(np.linalg.norm(x[4:7] - bvp.wf)))
     else:
         sig = np.linalg.norm(S * bvp.umax, axis=1)
         ratio = float(np.min(sig) / max(np.max(sig), 1e-300))
@@ -135,7 +141,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
         y0, _ = bvp.initial(z)
         sol = solve_ivp(rhs, (0.0, T), y0, method="Radau", rtol=1e-11, atol=1e-12)
         yR = sol.y[:, -1]
-        rep = max(float(qerror_angle(yR[0:4], bvp.qf)), float(np.linalg.norm(yR[4:7] - bvp.wf)))
+        rep = max(bvp.attitude_error(yR[0:4]), float(np.linalg.norm(yR[4:7] - bvp.wf)))
         # a p-norm control is continuous except where λω = 0; Radau is less accurate there
         tols["replay"] = max(tols["replay"], 1e-6)
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])

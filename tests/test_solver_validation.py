@@ -20,10 +20,17 @@ def test_cones_rejected_by_the_indirect_route_until_supported():
         solvers.solve(p, method="indirect")
 
 
-def test_pointing_target_rejected_by_the_indirect_route_until_supported():
+def test_pointing_target_by_multiple_shooting():
     p = SlewProblem([1, 1, 1], sensor_target=[0, 1, 0])
-    with pytest.raises(ValueError, match=r"^sensor_target: pointing-only"):
-        solvers.solve(p, method="multiple-shooting")
+    s = solvers.solve(p, method="multiple-shooting")
+    assert s.success and s.method == "multiple-shooting" and s.verification["roll_transversality"]["passed"]
+    assert s.tf < s.baseline_tf
+
+
+def test_pointing_target_already_met_is_a_clear_error():
+    p = SlewProblem([1, 1, 1], sensor_target=[1, 0, 0])
+    with pytest.raises(ValueError, match=r"^sensor_target: .*already points"):
+        solvers.solve(p, method="indirect")
 
 
 def test_bad_collocation_options():

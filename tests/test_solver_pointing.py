@@ -1,0 +1,96 @@
+"""Pointing-only targets (free roll about the sensor) in the indirect solver: the roll
+transversality condition, verification, and agreement with collocation."""
+import math
+
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+from slew_env.core.dynamics import propagate
+from slew_env.core.quaternion import qconj, qmul, qrotate
+from solvers import solve
+from solvers.attitude_bvp import AttitudeBVP
+
+TARGET = np.array([0.2, -0.6, 0.77])
+TARGET = TARGET / np.linalg.norm(TARGET)
+
+
+@pytest.fixture(scope="module")
+def pointing():
+    p = SlewProblem(inertia=[0.55, 1.0, 0.8], sensor_axis=[1.0, 0.0, 0.0], sensor_target=TARGET)
+    return p, solve(p, warm_start=None), solve(p, method="collocation")
+
+
+def test_auto_refines_a_pointing_slew_to_an_exact_extremal(pointing):
+    p, s, col = pointing
+    assert s.success and s.method == "indirect", s.message
+    assert "collocation" in s.route and "refinement" in s.route
+    v = s.verification
+    assert v["roll_transversality"]["passed"] and v["roll_transversality"]["value"] < 1e-8
+    assert v["boundary_attitude_error"]["value"] < 1e-8 and v["replay"]["value"] < 1e-7
+    # collocation's approximate answer is slightly slower (its discretisation), never faster
+    assert s.tf <= col.tf * (1 + 1e-6) and s.tf >= col.tf * (1 - 5e-3)
+
+
+def test_roll_transversality_holds_on_the_returned_costates(pointing):
+    p, s, _ = pointing
+    qT, lqT = s.q[-1], s.costate[-1, :4]
+    mu = qmul(qconj(qT), lqT)[1:4]          # attitude costate in body axes at tf
+    assert abs(mu @ p.sensor_axis) < 1e-8 * np.linalg.norm(mu)
+    assert np.linalg.norm(mu) > 1e-3        # not trivially zero: the other two components are free
+
+
+def test_switch_times_alone_reach_the_target_direction(pointing):
+    p, s, _ = pointing
+    ev = sorted((t, i) for i in range(3) for t in s.switch_times[i])
+    x = np.concatenate([p.q0, p.omega0])
+    sg = s.u_first.astype(float).copy()
+    t0 = 0.0
+    for t, i in ev + [(s.tf, -1)]:
+        if t > t0:
+            x = propagate(x, p.torque_max * sg, p.inertia, t - t0, max(1, int(math.ceil((t - t0) / s.tf * 8000))))[-1]
+        if i >= 0:
+            sg[i] = -sg[i]
+        t0 = t
+    err = math.atan2(np.linalg.norm(np.cross(qrotate(x[:4], p.sensor_axis), TARGET)), qrotate(x[:4], p.sensor_axis) @ TARGET)
+    assert err < 1e-7 and np.linalg.norm(x[4:]) < 1e-7
+
+
+def test_pointing_is_never_slower_than_the_full_attitude_slew_to_the_reference(pointing):
+    """Freeing the roll can only help: the full-attitude slew to the shortest-arc attitude
+    that points the sensor is one admissible pointing slew."""
+    p, s, _ = pointing
+    ref = AttitudeBVP(p).ref_problem
+    full = solve(ref, warm_start=None)
+    assert full.success and s.tf < full.tf
+    assert s.tf < s.baseline_tf
+
+
+def test_terminal_gradient_matches_finite_differences():
+    p = SlewProblem(inertia=[0.5, 1.0, 0.8], sensor_axis=[0.2, 0.9, -0.3], sensor_target=[0.3, -0.5, 0.8])
+    b = AttitudeBVP(p)
+    rng = np.random.default_rng(1)
+    y = rng.normal(size=14)
+    y[0:4] /= np.linalg.norm(y[0:4])
+    r, D, _ = b.terminal(y, 1.0)
+    Dn = np.zeros_like(D)
+    for k in range(14):
+        e = np.zeros(14)
+        e[k] = 1e-6
+        Dn[:, k] = (b.terminal(y + e, 1.0)[0] - b.terminal(y - e, 1.0)[0]) / 2e-6
+    np.testing.assert_allclose(D, Dn, atol=1e-8)
+    assert b.pointing_error(b.qf) < 1e-15
+
+
+def test_pointing_error_is_accurate_for_tiny_angles():
+    p = SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_axis=[1.0, 0.0, 0.0], sensor_target=[1.0, 0.0, 0.0])
+    b = AttitudeBVP(p)
+    q = np.array([math.cos(0.5e-10), 0.0, 0.0, math.sin(0.5e-10)])   # 1e-10 rad about z
+    assert b.pointing_error(q) == pytest.approx(1e-10, rel=1e-6)
+
+
+def test_cones_still_go_to_collocation():
+    p = SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=[0.0, 1.0, 0.0],
+                    cones=[{"axis": [0.7071, 0.7071, 0.0], "half_angle_deg": 10.0}])
+    with pytest.raises(ValueError, match="cones"):
+        solve(p, method="indirect")
