@@ -49,7 +49,7 @@ from .eigenaxis import eigenaxis_slew
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
-from .verify import verify
+from .verify import make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
@@ -300,6 +300,10 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
     from .collocation import solve_collocation
     col = solve_collocation(prob, **dict({"time_budget": max(1.0, budget - spent())}, **col_opts))
     if not indirect_ok:
+        ref = _refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
+        if ref is not None:
+            ref.wall_time = spent()
+            return ref
         col.route = f"auto: collocation ({col.route})"
         col.wall_time = spent()
         return col
@@ -330,6 +334,48 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()
     return ind
+
+
+# a cone whose clearance on the collocation answer exceeds this (rad) is taken as inactive
+INACTIVE_CONE_MARGIN = 1e-3
+
+
+def _refine_inactive_cones(prob, col, options, budget_left):
+    """Exact answer for a cone problem whose cones are all inactive, or ``None``.
+
+    If the collocation answer stays ``INACTIVE_CONE_MARGIN`` clear of every cone, the
+    constrained optimum is an extremal of the problem without cones: refine it by the
+    indirect solver from the collocation costates, then accept it only if it is not slower
+    than the collocation answer and its re-propagated path (switch times alone, RK4)
+    clears every cone at every instant (certified lower bound, ``solvers.clearance``).
+    An unconstrained extremal that is feasible and as fast as the constrained optimum is
+    the constrained optimum.
+    """
+    from .clearance import bang_bang_path, certified_min_margin
+    per_axis = math.isinf(prob.torque_norm)
+    cc = col.verification.get("cone_clearance", {})
+    if not per_axis or not prob.is_rest_to_rest or not (cc.get("value", -1.0) > INACTIVE_CONE_MARGIN):
+        return None
+    free = prob.replace(cones=[])
+    g = Guess(col.costate0, col.tf, col.switch_times, col.u_first, source="collocation")
+    opts = dict(options, max_candidates=1, min_candidates=1, enough=1,
+                time_budget=max(0.5, min(2.0, budget_left)))
+    ref = _solve_indirect(free, "indirect", g, **opts)
+    col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
+    if not (ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel)):
+        return None
+    t, x = bang_bang_path(prob, ref.switch_times, ref.u_first, ref.tf)
+    sample_min, certified = certified_min_margin(prob, t, x[:, 0:4], x[:, 4:7])
+    tol = -1e-6
+    ref.verification["cone_clearance"] = make_check(certified, tol, certified >= tol)
+    if certified < tol:
+        return None
+    ref.problem = prob
+    ref.route = (f"auto: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
+                 f"indirect refinement without cones: {ref.route}; certified clearance {certified:.3g} rad")
+    ref.nit += col.nit
+    ref.nfev += col.nfev
+    return ref
 
 
 def _solve_indirect(prob, method, guess, first_verified=False, **options) -> SlewSolution:
