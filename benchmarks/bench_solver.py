@@ -1,4 +1,4 @@
-"""Benchmark: solvers.solve on N seeded random rest-to-rest slews, classical guesses only.
+"""Benchmark: solvers.solve on N seeded random rest-to-rest slews (classical guesses by default).
 
 Prints convergence rate, median / 95th-percentile wall time, Newton iterations, and the
 floor — one propagation of the converged extremal with its sensitivities (6 columns) —
@@ -6,6 +6,10 @@ with the ratio of the median solve time to that floor. Also the final-time gain 
 the eigenaxis slew.
 
     python benchmarks/bench_solver.py [--n 100] [--seed 0] [--norm inf|2] [--method indirect]
+                                      [--warm-start none|default|MODEL.npz]
+
+``--warm-start none`` (default): the classical guesses only; ``default``: the shipped learned
+model first (then the classical route if its guess fails).
 """
 import argparse
 import math
@@ -57,13 +61,15 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--norm", default="inf")
     ap.add_argument("--method", default="indirect")
+    ap.add_argument("--warm-start", default="none")
     args = ap.parse_args(argv)
+    ws = None if args.warm_start == "none" else args.warm_start
     probs = random_problems(args.n, args.seed, args.norm)
-    solvers.solve(probs[0], method=args.method)           # compile / warm the numba cache
+    solvers.solve(probs[0], method=args.method, warm_start=ws)   # compile / warm the numba cache
     rows = []
     t_all = time.perf_counter()
     for k, p in enumerate(probs):
-        s = solvers.solve(p, method=args.method)
+        s = solvers.solve(p, method=args.method, warm_start=ws)
         rows.append(s)
         print(f"\r{k + 1}/{len(probs)} solved, {sum(r.success for r in rows)} converged", end="", file=sys.stderr)
     print(file=sys.stderr)
@@ -80,7 +86,10 @@ def main(argv=None):
     for s in rows:
         statuses[s.status] = statuses.get(s.status, 0) + 1
     print(f"solver benchmark: {args.n} random rest-to-rest slews, seed {args.seed}, "
-          f"torque_norm {args.norm}, method {args.method}, classical guesses only")
+          f"torque_norm {args.norm}, method {args.method}, warm start {args.warm_start}")
+    if ws is not None:
+        won = sum(1 for s in rows if s.warm_start.get("succeeded"))
+        print(f"  learned guess won            {won}/{len(rows)}")
     print(f"  convergence (verified)       {len(ok)}/{len(rows)} = {100 * len(ok) / len(rows):.1f} %"
           f"   (symmetric {sum(s.success for s in sym)}/{len(sym)}, asymmetric {sum(s.success for s in asym)}/{len(asym)})")
     print(f"  statuses                     {dict(sorted(statuses.items()))}")

@@ -45,7 +45,7 @@ from .core import attitude_flow as af
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solve_structure
 from .shooting import newton_shoot
-from .eigenaxis import eigenaxis_slew
+from .eigenaxis import eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
@@ -252,11 +252,14 @@ def _warm_start(prob, method, warm_start, options):
     if model is None:
         return None, {}
     name = getattr(model, "name", type(model).__name__)
-    why = model.covers(prob)
+    t0 = time.perf_counter()
+    if hasattr(model, "guess_or_reason"):
+        g, why = model.guess_or_reason(prob)
+    else:
+        why = model.covers(prob)
+        g = None if why else model.guess(prob)
     if why:
         return None, {"model": name, "covered": False, "reason": why}
-    t0 = time.perf_counter()
-    g = model.guess(prob)
     t_guess = time.perf_counter() - t0
     t_inf = getattr(model, "last_inference_s", t_guess)
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
@@ -413,7 +416,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     # target the eigenaxis slew to the reference attitude, one feasible way to point)
     baseline = math.nan
     if prob.is_rest_to_rest:
-        baseline = eigenaxis_slew(bvp.ref_problem, n_grid=1000).tf / bvp.tau
+        baseline = eigenaxis_time(bvp.ref_problem, n_grid=1000) / bvp.tau
     deadline = t_start + budget
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
 

@@ -59,6 +59,32 @@ def _accel_interval(a, c, U, p, s):
     return left, right
 
 
+def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
+    """``eigenaxis_slew(problem, n_grid).tf`` without the profile arrays (the solver's
+    baseline gate; per-axis bound compiled end to end)."""
+    if not isinstance(problem, SlewProblem):
+        problem = SlewProblem.from_dict(problem)
+    if not math.isinf(problem.torque_norm) or problem.qf is None or not problem.is_rest_to_rest:
+        return eigenaxis_slew(problem, n_grid).tf
+    n, th = eigenaxis_axis_angle(problem)
+    if th == 0.0:
+        return 0.0
+    J, U = problem.inertia, problem.torque_max
+    a = np.ascontiguousarray(J * n, float)
+    c = np.cross(n, J * n)
+    if np.linalg.norm(c) <= 1e-12 * np.linalg.norm(a):
+        c = np.zeros(3)
+    c = np.ascontiguousarray(c, float)
+    U = np.ascontiguousarray(U, float)
+    s_max = topp.max_speed(a, c, U)
+    if problem.rate_max is not None:
+        for i in range(3):
+            if abs(n[i]) > 1e-15:
+                s_max = min(s_max, (problem.rate_max[i] / abs(n[i])) ** 2)
+    fwd, bwd = topp.sweep_per_axis(a, c, U, float(s_max), float(th), int(n_grid))
+    return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
+
+
 def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds."""
     if not isinstance(problem, SlewProblem):

@@ -63,3 +63,41 @@ def sweep_per_axis(a, c, U, s_max, th, n_grid):
             dec = max(dec, _amin(a, c, U, min(s - 2.0 * dth * dec, s_max), s_max))
         bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
     return fwd, bwd
+
+
+@njit(cache=True)
+def max_speed(a, c, U):
+    """Largest ``s = θ̇²`` with a non-empty acceleration interval (the maximum-velocity
+    curve of the per-axis bound); ``inf`` when the gyroscopic term never limits it."""
+    hi = 1.0
+    while True:
+        lo_, hi_, ok = accel_interval(a, c, U, hi)
+        if not ok or hi >= 1e12:
+            break
+        hi *= 2.0
+    if hi >= 1e12:
+        return math.inf
+    lo = 0.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo_, hi_, ok = accel_interval(a, c, U, mid)
+        if ok:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def profile_time(fwd, bwd, th, n_grid):
+    """Duration of the phase-plane profile ``min(fwd, bwd)`` (piecewise-constant acceleration)."""
+    dth = th / n_grid
+    total = 0.0
+    prev = math.sqrt(max(min(fwd[0], bwd[0]), 0.0))
+    for k in range(1, n_grid + 1):
+        r = math.sqrt(max(min(fwd[k], bwd[k]), 0.0))
+        den = prev + r
+        if den > 0.0:
+            total += 2.0 * dth / den
+        prev = r
+    return total

@@ -73,17 +73,21 @@ def axis_angle(problem: SlewProblem):
 
 def canonical_form(problem) -> CanonicalForm:
     """The canonical form of a rest-to-rest full-attitude ``problem`` (``ValueError`` otherwise)."""
-    problem = SlewProblem.from_dict(problem)
+    if not isinstance(problem, SlewProblem):
+        problem = SlewProblem.from_dict(problem)
     why = unsupported_reason(problem)
     if why:
         raise ValueError(why)
     n, th = axis_angle(problem)
-    order = tuple(int(i) for i in np.argsort(-np.abs(n), kind="stable"))
+    a = [abs(float(v)) for v in n]
+    order = tuple(sorted(range(3), key=lambda i: -a[i]))   # stable: ties keep the axis order
     P = np.zeros((3, 3))
     for i, j in enumerate(order):
         P[i, j] = 1.0
+    # parity of the permutation = det P; det(D P) = +1 makes A a rotation, not a reflection
+    parity = 1.0 if order in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
     d = np.array([1.0 if n[order[0]] >= 0 else -1.0, 1.0 if n[order[1]] >= 0 else -1.0, 1.0])
-    d[2] = np.linalg.det(P) * d[0] * d[1]          # det(D P) = +1: a rotation, not a reflection
+    d[2] = parity * d[0] * d[1]
     A = d[:, None] * P
     Jmax = float(problem.inertia.max())
     umax = float(problem.torque_max.max())

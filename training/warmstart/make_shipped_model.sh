@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The exact commands that made the shipped warm-start model
+# (solvers/warmstart/models/full-attitude.npz). Each dataset is deterministic in
+# (family, seed, index) and the solve route; a run that is stopped can be continued with the
+# same command. On 2 cores: about 10 min (1), 1 min (2), 16 min (3), 6 min (4).
+set -euo pipefail
+mkdir -p runs/solutions runs/data runs
+
+# 1. unbiased data from the robust route (collocation, exact refinement, classical multi-start)
+slew generate --family full-attitude --n 1000 --seed 1   -o runs/solutions/full-attitude-seed1.jsonl
+slew generate --family full-attitude --n 200  --seed 100 -o runs/solutions/full-attitude-seed100.jsonl
+
+# 2. the bootstrap model that seeds the bulk data. It is shipped
+#    (training/warmstart/bootstrap/bootstrap1.npz, sha256 426cfb96…) because its own data came
+#    from two runs that were stopped early (a robust-route run, seed 11, 1,659 records, and a
+#    warm-route run from a smaller bootstrap model, seed 12, 5,521 records); see docs/WARMSTART.md.
+
+# 3. bulk data: the bootstrap model's guess alone, indirect solver, 0.3 s budget, no fallback
+#    (a problem it does not solve is a failure record)
+slew generate --family full-attitude --n 25000 --seed 13 -o runs/data/full-attitude-warm-s13.jsonl \
+    --solve-fn training.generate:solve_warm \
+    --solve-options '{"model": "training/warmstart/bootstrap/bootstrap1.npz", "time_budget": 0.3}'
+
+# 4. the network, exported for numpy inference
+slew train --data runs/solutions/full-attitude-seed1.jsonl runs/solutions/full-attitude-seed100.jsonl \
+    runs/data/full-attitude-warm-s13.jsonl --out runs/ws-final --seed 0 \
+    --export solvers/warmstart/models/full-attitude.npz
+
+# 5. the evaluation in README / docs/WARMSTART.md
+slew evaluate --n 1000 --seed 20261122 --baseline-n 100 --out runs/evaluate \
+    --train-data runs/solutions/full-attitude-seed1.jsonl runs/solutions/full-attitude-seed100.jsonl \
+    runs/data/full-attitude-warm-s13.jsonl
