@@ -53,7 +53,8 @@ from .verify import make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
-            "eps_min", "rtol", "atol"}
+            "eps_min", "rtol", "atol", "warm_budget"}
+WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 
 
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
@@ -199,7 +200,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
-    ``time_budget`` (s, default 20), ``tols`` (verification tolerances, see
+    ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
+    default 1), ``tols`` (verification tolerances, see
     ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400 steps), ``eps_min`` (end of the
     smoothing path, default 1e-3), ``rtol``/``atol`` (integrator). ``collocation``: a dict
     of options for ``solvers.collocation.solve_collocation`` (``method="collocation"`` and
@@ -231,10 +233,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         if warm is not None and warm.success:
             warm.wall_time = time.perf_counter() - t0
             return warm
+    rest = {k: v for k, v in options.items() if k != "warm_budget"}
     if method == "auto":
-        sol = _solve_auto(prob, guess, col_opts, options)
+        sol = _solve_auto(prob, guess, col_opts, rest)
     else:
-        sol = _solve_indirect(prob, method, guess, **options)
+        sol = _solve_indirect(prob, method, guess, **rest)
     if info:
         sol.warm_start = info
         if warm is not None:
@@ -263,8 +266,9 @@ def _warm_start(prob, method, warm_start, options):
     t_guess = time.perf_counter() - t0
     t_inf = getattr(model, "last_inference_s", t_guess)
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
-    budget = min(2.0, float(options.get("time_budget", 20.0)))
-    opts = dict(options, max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
+    budget = float(options.get("warm_budget", min(WARM_BUDGET, float(options.get("time_budget", 20.0)))))
+    opts = {k: v for k, v in options.items() if k != "warm_budget"}
+    opts.update(max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
     sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}

@@ -13,7 +13,10 @@ def add_arguments(p):
                    help="the model's training data: builds the nearest-neighbour baseline from it")
     p.add_argument("--baseline-n", type=int, default=100,
                    help="problems for the slow baselines: eigenaxis, random, collocation (default 100)")
-    p.add_argument("--budget", type=float, default=5.0, help="time budget per guess, seconds (default 5)")
+    p.add_argument("--budget", type=float, default=5.0,
+                   help="time budget of a classical guess (eigenaxis, random), seconds (default 5)")
+    p.add_argument("--warm-budget", type=float, default=None,
+                   help="time budget of a model's candidates, seconds (default: solve()'s, 1)")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     p.add_argument("--out", "-o", default="runs/evaluate", help="output directory (report.md, results.jsonl, evaluation.png)")
     p.add_argument("--no-progress", action="store_true")
@@ -27,7 +30,7 @@ def run(args) -> int:
         if not os.path.exists(path):
             raise FileNotFoundError(f"--train-data: no such file: {path}")
     s = evaluate(args.family, args.n, args.seed, args.model, args.train_data, args.out, args.baseline_n,
-                 args.workers, args.budget, progress_bar=not args.no_progress)
+                 args.workers, args.budget, progress_bar=not args.no_progress, warm_budget=args.warm_budget)
     with open(os.path.join(args.out, "report.md")) as f:
         print(f.read())
     return 0

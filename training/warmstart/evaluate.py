@@ -40,7 +40,7 @@ def _init(model_path, nn_path):
 
 
 def _run_one(args):
-    family, seed, index, guesses, budget = args
+    family, seed, index, guesses, budget, warm_budget = args
     from solvers import Guess
     from solvers.api import _solve_indirect, _warm_start
     from solvers.warmstart.features import canonical_form, solution_from_canonical
@@ -52,7 +52,7 @@ def _run_one(args):
         try:
             if name in ("learned", "nearest-neighbour"):
                 model = _W["model"] if name == "learned" else _W["nn"]
-                sol, info = _warm_start(prob, "indirect", model, {"time_budget": budget})
+                sol, info = _warm_start(prob, "indirect", model, {"warm_budget": warm_budget})
                 if sol is None:
                     out.append({"index": index, "guess": name, "covered": False, "reason": info.get("reason")})
                     continue
@@ -104,7 +104,11 @@ def build_nn(data_paths, out_path, max_switches=5, k=3):
 
 
 def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, train_data=None, out="runs/evaluate",
-             baseline_n=100, workers=None, budget=5.0, progress_bar=True) -> dict:
+             baseline_n=100, workers=None, budget=5.0, progress_bar=True, warm_budget=None) -> dict:
+    """See the module docstring. ``budget``: seconds per classical guess (eigenaxis, random);
+    ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s)."""
+    from solvers.api import WARM_BUDGET
+    warm_budget = WARM_BUDGET if warm_budget is None else float(warm_budget)
     from solvers import warmstart
     os.makedirs(out, exist_ok=True)
     model = warmstart.load_model(model_path) if model_path else warmstart.default_model()
@@ -116,7 +120,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         g = ["learned"] + (["nearest-neighbour"] if nn_path else [])
         if i < baseline_n:
             g += ["eigenaxis", "random", "collocation"]
-        jobs.append((family, seed, i, tuple(g), budget))
+        jobs.append((family, seed, i, tuple(g), budget, warm_budget))
     workers = workers or os.cpu_count() or 1
     rows = []
     bar = None
@@ -137,7 +141,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
             f.write(json.dumps(r) + "\n")
     summary = summarise(rows)
     summary["inference_s_median"] = inference_time(model, family, seed)
-    summary.update(family=family, n=n, seed=seed, baseline_n=min(baseline_n, n),
+    summary.update(family=family, n=n, seed=seed, baseline_n=min(baseline_n, n), budget_s=budget, warm_budget_s=warm_budget,
                    model=getattr(model, "path", None) or model_path or warmstart.DEFAULT_MODEL_FILE,
                    train_data=[os.fspath(p) for p in (train_data or [])], workers=workers)
     with open(os.path.join(out, "summary.json"), "w") as f:
@@ -188,7 +192,8 @@ def summarise(rows) -> dict:
 def markdown(s) -> str:
     lines = [f"# Warm-start evaluation: {s['family']}, {s['n']} held-out problems (seed {s['seed']})", "",
              f"Model: `{os.path.basename(str(s['model']))}`; slow baselines (eigenaxis, random, collocation) on the "
-             f"first {s['baseline_n']} problems; {s['workers']} worker process(es). Each guess alone, no fallback.", "",
+             f"first {s['baseline_n']} problems; {s['workers']} worker process(es). Each guess alone, no fallback; "
+             f"time budget {s.get('warm_budget_s')} s for a model's candidates, {s.get('budget_s')} s for a classical guess.", "",
              "| guess | problems | converged | Newton it. (median / mean) | median time | p95 time | median time (converged) | tf gap to best (median / p95) | at best |",
              "|---|---|---|---|---|---|---|---|---|"]
     for g in GUESSES:
