@@ -209,19 +209,28 @@ class WarmStartModel:
         return h
 
     def predict_canonical(self, x, T_eig) -> Prediction:
-        out = self.forward(x)[0].astype(np.float64)
+        # plain Python on the ~50 outputs: numpy's per-call overhead dominates at this size
+        out = self.forward(x)[0].tolist()
         L, K = self.layout, self.K
-        z = out[slice(*L["z"])]
-        z = z / max(np.linalg.norm(z), 1e-12)
-        T = float(T_eig * math.exp(out[slice(*L["log_T_ratio"])][0]))
-        uf = np.where(out[slice(*L["u_first_logit"])] >= 0.0, 1.0, -1.0)
-        cl = out[slice(*L["count_logits"])].reshape(3, K + 1)
-        cp = np.exp(cl - cl.max(axis=1, keepdims=True))
-        cp /= cp.sum(axis=1, keepdims=True)
-        counts = np.argmax(cp, axis=1)
-        tl = out[slice(*L["times_logit"])].reshape(3, K)
-        frac = 1.0 / (1.0 + np.exp(-tl))
-        times = [np.sort(frac[i, :counts[i]]) * T for i in range(3)]
+        z = out[L["z"][0]:L["z"][1]]
+        nz = max(math.sqrt(sum(v * v for v in z)), 1e-12)
+        z = np.array([v / nz for v in z])
+        T = float(T_eig * math.exp(out[L["log_T_ratio"][0]]))
+        uf = np.array([1.0 if v >= 0.0 else -1.0 for v in out[L["u_first_logit"][0]:L["u_first_logit"][1]]])
+        c0, t0 = L["count_logits"][0], L["times_logit"][0]
+        cp = np.empty((3, K + 1))
+        counts = np.empty(3, dtype=np.int64)
+        times = []
+        for i in range(3):
+            row = out[c0 + i * (K + 1):c0 + (i + 1) * (K + 1)]
+            m = max(row)
+            e = [math.exp(v - m) for v in row]
+            se = sum(e)
+            cp[i] = [v / se for v in e]
+            c = max(range(K + 1), key=lambda k: row[k])
+            counts[i] = c
+            fr = sorted(1.0 / (1.0 + math.exp(-v)) for v in out[t0 + i * K:t0 + i * K + c])
+            times.append(np.array(fr) * T)
         return Prediction(z, T, uf, counts, cp, times)
 
     def guess(self, problem, propagate=True) -> Guess:
