@@ -219,6 +219,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         raise ValueError(f"options: unknown option(s) {sorted(unknown)}; known: {sorted(_OPTIONS)}")
     if guess is not None and not isinstance(guess, Guess):
         raise ValueError(f"guess: expected a solvers.Guess, got {type(guess).__name__}")
+    for key in ("time_budget", "warm_budget"):
+        if key in options:
+            v = options[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v > 0) or not math.isfinite(v):
+                raise ValueError(f"{key}: must be a positive number of seconds, got {v!r}")
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")

@@ -258,3 +258,27 @@ def test_ray_backend_local_instance(tmp_path):
     assert ray_rec["problem"] == local["problem"]
     if local["success"] and ray_rec["success"]:
         assert abs(ray_rec["tf"] - local["tf"]) <= 1e-8 * local["tf"]
+
+
+def test_warm_route_generation_with_the_shipped_model(tmp_path):
+    """``solve_warm``: the model's guess alone; exact records say which candidate won."""
+    from solvers.warmstart import DEFAULT_MODEL_FILE
+    spec = GenerationSpec("full-attitude", seed=5, n=8, solve_fn="training.generate:solve_warm",
+                          solve_options={"model": DEFAULT_MODEL_FILE, "time_budget": 0.5})
+    out = tmp_path / "w.jsonl"
+    s = generate(spec, out, workers=1, progress=False)
+    assert s.complete and s.written == 8
+    recs = _check_dataset(out, spec)
+    ok = [r for r in recs if r["success"]]
+    assert len(ok) >= 5
+    assert all(r["exact"] and r["guess"].startswith("learned") and r["method"] == "indirect" for r in ok)
+    for r in recs:
+        if not r["success"]:
+            assert r["status"] in (1, 2, 3, 4) and r["message"]
+
+
+def test_solve_default_never_uses_a_model():
+    from training.generate import solve_default
+    p = problem_for(GenerationSpec("full-attitude", seed=5), 0)
+    s = solve_default(p, time_budget=20)
+    assert s.success and s.warm_start == {} and not s.guess.startswith("learned")

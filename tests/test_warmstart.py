@@ -262,3 +262,10 @@ def test_cli_train_and_evaluate(tmp_path):
     assert "| learned |" in open(tmp_path / "ev" / "report.md").read()
     assert (tmp_path / "ev" / "evaluation.png").exists()
     assert main(["train", "--data", str(tmp_path / "missing.jsonl"), "--out", str(tmp_path / "x")]) == 2
+
+
+@pytest.mark.parametrize("key, bad", [("warm_budget", -1.0), ("warm_budget", "1"), ("time_budget", 0.0),
+                                      ("time_budget", float("nan"))])
+def test_budget_options_are_validated(key, bad):
+    with pytest.raises(ValueError, match=f"^{key}: must be a positive number"):
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), **{key: bad})
