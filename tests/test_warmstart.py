@@ -269,3 +269,11 @@ def test_cli_train_and_evaluate(tmp_path):
 def test_budget_options_are_validated(key, bad):
     with pytest.raises(ValueError, match=f"^{key}: must be a positive number"):
         solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), **{key: bad})
+
+
+def test_evaluate_on_a_family_the_model_does_not_cover(tmp_path):
+    from training.warmstart.evaluate import evaluate
+    s = evaluate("pointing-cones", n=1, seed=3, out=str(tmp_path), baseline_n=1, workers=1, progress_bar=False)
+    assert "learned" not in s and s["collocation"]["n"] == 1
+    assert s["inference_s_median"] != s["inference_s_median"]      # NaN: nothing covered
+    assert "covers none" in open(tmp_path / "report.md").read()

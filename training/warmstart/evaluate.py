@@ -84,6 +84,9 @@ def inference_time(model, family, seed, n=200):
     from solvers.warmstart.features import canonical_form
     from training.generate import GenerationSpec, problem_for
     probs = [problem_for(GenerationSpec(family, seed=seed), i) for i in range(n)]
+    probs = [p for p in probs if model.covers(p) is None]
+    if not probs:
+        return math.nan
     for p in probs:    # one warm-up pass: first calls load compiled code, the CPU clocks up
         cf = canonical_form(p)
         model.predict_canonical(cf.x, cf.T_eig)
@@ -210,7 +213,13 @@ def markdown(s) -> str:
         at = f"{100 * r['share_at_best']:.1f} %" if r['share_at_best'] == r['share_at_best'] else "–"
         lines.append(f"| {g} | {r['n']} | {conv} | {nit} | {1e3 * r['time_median_s']:.1f} ms | "
                      f"{1e3 * r['time_p95_s']:.1f} ms | {1e3 * r['time_median_converged_s']:.1f} ms | {gap} | {at} |")
-    lines += ["", f"Inference (canonical form + network, numpy): median {1e6 * s['inference_s_median']:.1f} µs per problem."]
+    if s["inference_s_median"] == s["inference_s_median"]:
+        lines += ["", f"Inference (canonical form + network, numpy): median {1e6 * s['inference_s_median']:.1f} µs per problem."]
+    else:
+        lines += ["", "The model covers none of these problems."]
+    none = [g for g in GUESSES if g not in s]
+    if none:
+        lines.append(f"Not applicable to this family (the guess or route rejects every problem): {', '.join(none)}.")
     if "nit_ratio_eigenaxis_over_learned" in s:
         lines.append(f"On the problems both solved: the eigenaxis route took {s['nit_ratio_eigenaxis_over_learned']:.1f}× the "
                      f"Newton iterations of the learned guess (mean) and {s['time_ratio_eigenaxis_over_learned']:.0f}× its time (median ratio).")
