@@ -239,6 +239,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
             warm.wall_time = time.perf_counter() - t0
             return warm
     rest = {k: v for k, v in options.items() if k != "warm_budget"}
+    if info:   # the time budget is for the whole solve, the warm stage included
+        rest["time_budget"] = max(0.5, float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0))
     if method == "auto":
         sol = _solve_auto(prob, guess, col_opts, rest)
     else:
@@ -261,13 +263,21 @@ def _warm_start(prob, method, warm_start, options):
         return None, {}
     name = getattr(model, "name", type(model).__name__)
     t0 = time.perf_counter()
-    if hasattr(model, "guess_or_reason"):
-        g, why = model.guess_or_reason(prob)
-    else:
-        why = model.covers(prob)
-        g = None if why else model.guess(prob)
+    try:
+        if hasattr(model, "guess_or_reason"):
+            g, why = model.guess_or_reason(prob)
+        else:
+            why = model.covers(prob)
+            g = None if why else model.guess(prob)
+    except (ValueError, ArithmeticError, IndexError, KeyError) as e:
+        # a model that cannot produce a guess must not stop the solve: the classical route
+        # runs, and the error is recorded (the answer is verified either way)
+        return None, {"model": name, "covered": True, "succeeded": False,
+                      "error": f"{type(e).__name__}: {e}"[:300]}
     if why:
         return None, {"model": name, "covered": False, "reason": why}
+    if not isinstance(g, Guess):
+        raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
     t_guess = time.perf_counter() - t0
     t_inf = getattr(model, "last_inference_s", t_guess)
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"

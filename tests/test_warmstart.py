@@ -277,3 +277,30 @@ def test_evaluate_on_a_family_the_model_does_not_cover(tmp_path):
     assert "learned" not in s and s["collocation"]["n"] == 1
     assert s["inference_s_median"] != s["inference_s_median"]      # NaN: nothing covered
     assert "covers none" in open(tmp_path / "report.md").read()
+
+
+def test_a_model_that_raises_falls_back_and_records_the_error():
+    class Broken:
+        name = "broken"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            raise ValueError("weights went NaN")
+    r = _exact()[2]
+    s = solve(r["problem"], method="indirect", warm_start=Broken())
+    assert s.success and "weights went NaN" in s.warm_start["error"] and s.warm_start["succeeded"] is False
+
+
+def test_a_model_returning_something_else_is_a_clear_error():
+    class Odd:
+        name = "odd"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            return [1, 2, 3]
+    with pytest.raises(ValueError, match="expected a solvers.Guess"):
+        solve(_exact()[2]["problem"], method="indirect", warm_start=Odd())
