@@ -269,7 +269,7 @@ def _warm_start(prob, method, warm_start, options):
         else:
             why = model.covers(prob)
             g = None if why else model.guess(prob)
-    except (ValueError, ArithmeticError, IndexError, KeyError) as e:
+    except Exception as e:   # noqa: BLE001 - any model failure (numerics, a user model's bug)
         # a model that cannot produce a guess must not stop the solve: the classical route
         # runs, and the error is recorded (the answer is verified either way)
         return None, {"model": name, "covered": True, "succeeded": False,
@@ -281,7 +281,8 @@ def _warm_start(prob, method, warm_start, options):
     t_guess = time.perf_counter() - t0
     t_inf = getattr(model, "last_inference_s", t_guess)
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
-    budget = float(options.get("warm_budget", min(WARM_BUDGET, float(options.get("time_budget", 20.0)))))
+    total = float(options.get("time_budget", 20.0))
+    budget = min(float(options.get("warm_budget", WARM_BUDGET)), total)
     opts = {k: v for k, v in options.items() if k != "warm_budget"}
     opts.update(max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
     sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)

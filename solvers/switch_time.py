@@ -231,10 +231,13 @@ def _chord(bvp, first: SwitchTimeResult, tol, max_iter=4):
             order = np.argsort(times, kind="stable")
             res_st = Structure(st.signs0.copy(), st.axes[order].copy(), times[order].copy())
             d = np.diff(np.concatenate([[0.0], times[order], [x[-1]]]))
-            return SwitchTimeResult(True, "converged", x[:6].copy(), d, res_st, rn, it, nfev, hist, J)
+            return SwitchTimeResult(True, "converged", x[:6].copy(), d, res_st, rn, it, nfev, hist, None)
         if it == max_iter or (len(hist) > 1 and rn > 0.5 * hist[-2]):
             return None
         x = x + np.linalg.lstsq(J, -r, rcond=1e-13)[0]
+        tt, Tt = x[6:6 + n], float(x[-1])
+        if not (Tt > 0.0 and np.all(tt >= 0.0) and np.all(tt <= Tt)):
+            return None     # a switch left [0, T]: full Newton with its line search instead
     return None
 
 

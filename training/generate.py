@@ -149,8 +149,10 @@ def solve_warm(problem, model=None, fallback=False, **options):
     if fallback:
         return solvers.solve(prob, warm_start=model or "default", **options)
     sol, info = _warm_start(prob, "indirect", model or "default", options)
-    if sol is None:
+    if sol is None and info.get("covered") is False:
         raise ValueError(f"warm start: the model does not cover this problem ({info.get('reason')})")
+    if sol is None:
+        raise RuntimeError(f"warm start: the model raised {info.get('error')}")
     return sol
 
 

@@ -72,6 +72,8 @@ class NearestNeighbourModel:
             return why
         if problem.rate_max is not None:
             return "rate_max: the table holds problems without rate limits"
+        if not np.isinf(problem.torque_norm):
+            return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
         return None
 
     def guess(self, problem) -> Guess:

@@ -8,7 +8,8 @@ known only to the collocation's accuracy and switch times that do not reproduce 
 Arrays (``N`` problems, ``K = max_switches``): ``X`` (N, 11) canonical features; ``Z``
 (N, 6) canonical costates; ``T`` (N,) nondimensional final time; ``T_eig`` (N,) eigenaxis
 guess time; ``log_T_ratio`` = log(T / T_eig); ``U`` (N, 3) first-arc signs; ``counts`` (N, 3)
-switches per canonical axis (capped at K, ``overflow`` marks rows with more); ``S`` (N, 3,
+switches per canonical axis (solutions with more than K on an axis are left out and counted
+in ``n_overflow``); ``S`` (N, 3,
 K) nondimensional switch times (NaN-padded); ``F`` = S / T (fractions); ``key`` (N,)
 "file:index" strings.
 """
@@ -35,7 +36,7 @@ def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
     if isinstance(paths, (str, bytes)) or hasattr(paths, "__fspath__"):
         paths = [paths]
     rows = []
-    n_seen = n_exact = 0
+    n_seen = n_exact = n_overflow = 0
     for path in paths:
         meta, recs = ds.read(path)
         if family is not None and meta.get("family") != family:
@@ -50,6 +51,9 @@ def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
             if r.get("switch_times") is None or r.get("u_first") is None:
                 continue
             z, T, sw, uf = solution_to_canonical(p, cf, r["costate0"], r["tf"], r["switch_times"], r["u_first"])
+            if max(len(a) for a in sw) > int(max_switches):
+                n_overflow += 1      # a structure the network cannot represent: left out, counted
+                continue
             rows.append((cf.x, z, T, cf.T_eig, uf, sw, f"{path}:{r['index']}"))
     K = int(max_switches)
     N = len(rows)
@@ -71,6 +75,7 @@ def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
     out["log_T_ratio"] = np.log(out["T"] / np.maximum(out["T_eig"], 1e-300))
     out["F"] = out["S"] / np.maximum(out["T"], 1e-300)[:, None, None]
     out["n_records"] = n_seen
+    out["n_overflow"] = n_overflow
     out["n_exact"] = n_exact
     return out
 

@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # The exact commands that made the shipped warm-start model
-# (solvers/warmstart/models/full-attitude.npz). Each dataset is deterministic in
-# (family, seed, index) and the solve route; a run that is stopped can be continued with the
-# same command. On 2 cores: about 10 min (1), 1 min (2), 16 min (3), 6 min (4).
+# (solvers/warmstart/models/full-attitude.npz). The problems of a dataset are deterministic in
+# (family, seed, index); a run that is stopped can be continued with the same command. Which
+# problems a route solves within its wall-clock time budget can depend on machine load, so a
+# rerun gives nearly, not exactly, the same records (and a correspondingly different model;
+# training itself is bit-reproducible for fixed data and seed).
+# On 2 cores: about 10 min (1), 16 min (3), 3 min (4), 8 min (5).
 set -euo pipefail
 mkdir -p runs/solutions runs/data runs
 
