@@ -55,6 +55,7 @@ METHODS = ("auto", "indirect", "multiple-shooting", "collocation")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget"}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
+REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation when the learned guess failed
 
 
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
@@ -242,7 +243,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     if info:   # the time budget is for the whole solve, the warm stage included
         rest["time_budget"] = max(0.5, float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0))
     if method == "auto":
-        sol = _solve_auto(prob, guess, col_opts, rest)
+        # the learned guess failed on a problem it covers: almost always a singular problem,
+        # where the exact refinement after collocation does not succeed either (it succeeds
+        # in well under a second when it does), so its budget is cut from 2 s
+        failed_warm = bool(info.get("covered")) and not info.get("succeeded")
+        sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0)
     else:
         sol = _solve_indirect(prob, method, guess, **rest)
     if info:
@@ -294,7 +299,7 @@ def _warm_start(prob, method, warm_start, options):
     return sol, info
 
 
-def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
+def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
     """The fastest route to a verified answer.
 
     1. a given ``guess`` alone, by the indirect route (a warm start);
@@ -336,7 +341,7 @@ def _solve_auto(prob, guess, col_opts, options) -> SlewSolution:
         # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
         # problem, where the λω = 0 instant makes a near guess hard to refine)
         opts = dict(options, max_candidates=2, min_candidates=1, enough=1,
-                    time_budget=max(0.5, min(2.0, budget - spent())))
+                    time_budget=max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
         ref = _solve_indirect(prob, "indirect", g, **opts)
         # the refined extremal must be the one collocation found (or better), not another
         col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
