@@ -59,74 +59,76 @@ def _accel_interval(a, c, U, p, s):
     return left, right
 
 
-def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
-    """``eigenaxis_slew(problem, n_grid).tf`` without the profile arrays (the solver's
-    baseline gate; per-axis bound compiled end to end)."""
-    if not isinstance(problem, SlewProblem):
-        problem = SlewProblem.from_dict(problem)
-    if not math.isinf(problem.torque_norm) or problem.qf is None or not problem.is_rest_to_rest:
-        return eigenaxis_slew(problem, n_grid).tf
+def _phase_plane(problem: SlewProblem):
+    """``(n, θ, a, c, s_max)``: eigenaxis and angle, torque per unit acceleration ``a = J n``
+    and per unit speed² ``c = n × Jn``, and the largest admissible ``s = θ̇²`` (the
+    maximum-velocity curve of the bound, capped by the rate limit)."""
     n, th = eigenaxis_axis_angle(problem)
-    if th == 0.0:
-        return 0.0
-    J, U = problem.inertia, problem.torque_max
+    J, U, p = problem.inertia, problem.torque_max, problem.torque_norm
     a = np.ascontiguousarray(J * n, float)
     c = np.cross(n, J * n)
+    # rounding leaves ~1e-17 of n × Jn for a symmetric body or a principal axis
     if np.linalg.norm(c) <= 1e-12 * np.linalg.norm(a):
         c = np.zeros(3)
     c = np.ascontiguousarray(c, float)
-    U = np.ascontiguousarray(U, float)
-    s_max = topp.max_speed(a, c, U)
+    if math.isinf(p):
+        s_mvc = topp.max_speed(a, c, np.ascontiguousarray(U, float))
+    else:   # largest s with a non-empty acceleration interval, by bisection
+        hi = 1.0
+        while _accel_interval(a, c, U, p, hi) is not None and hi < 1e12:
+            hi *= 2.0
+        s_mvc = math.inf
+        if hi < 1e12:
+            lo = 0.0
+            for _ in range(100):
+                mid = 0.5 * (lo + hi)
+                if _accel_interval(a, c, U, p, mid) is not None:
+                    lo = mid
+                else:
+                    hi = mid
+            s_mvc = lo
+    s_rate = math.inf
     if problem.rate_max is not None:
         for i in range(3):
             if abs(n[i]) > 1e-15:
-                s_max = min(s_max, (problem.rate_max[i] / abs(n[i])) ** 2)
-    fwd, bwd = topp.sweep_per_axis(a, c, U, float(s_max), float(th), int(n_grid))
-    return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
+                s_rate = min(s_rate, (problem.rate_max[i] / abs(n[i])) ** 2)
+    return n, th, a, c, min(s_mvc, s_rate)
 
 
-def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
-    """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds."""
+def _checked(problem) -> SlewProblem:
     if not isinstance(problem, SlewProblem):
         problem = SlewProblem.from_dict(problem)
     if problem.qf is None:
         raise ValueError("sensor_target: the eigenaxis slew needs a full attitude target qf")
     if not problem.is_rest_to_rest:
         raise ValueError("omega0, omegaf: the eigenaxis slew is defined rest to rest")
-    n, th = eigenaxis_axis_angle(problem)
-    J, U, p = problem.inertia, problem.torque_max, problem.torque_norm
-    a = J * n
-    c = np.cross(n, J * n)
-    # maximum-velocity curve: largest s with a non-empty acceleration interval
-    s_rate = math.inf
-    if problem.rate_max is not None:
-        for i in range(3):
-            if abs(n[i]) > 1e-15:
-                s_rate = min(s_rate, (problem.rate_max[i] / abs(n[i])) ** 2)
-    hi = 1.0
-    while _accel_interval(a, c, U, p, hi) is not None and hi < 1e12:
-        hi *= 2.0
-    lo = 0.0
-    if hi < 1e12:
-        for _ in range(100):
-            mid = 0.5 * (lo + hi)
-            if _accel_interval(a, c, U, p, mid) is not None:
-                lo = mid
-            else:
-                hi = mid
-        s_mvc = lo
-    else:
-        s_mvc = math.inf
-    s_max = min(s_mvc, s_rate)
+    return problem
+
+
+def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
+    """``eigenaxis_slew(problem, n_grid).tf`` without the profile arrays (the solver's
+    baseline gate; per-axis bound compiled end to end)."""
+    problem = _checked(problem)
+    if not math.isinf(problem.torque_norm):
+        return eigenaxis_slew(problem, n_grid).tf
+    n, th, a, c, s_max = _phase_plane(problem)
+    if th == 0.0:
+        return 0.0
+    U = np.ascontiguousarray(problem.torque_max, float)
+    fwd, bwd = topp.sweep_per_axis(a, c, U, float(s_max), float(th), int(n_grid))
+    return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
+
+
+def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
+    """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds."""
+    problem = _checked(problem)
+    U, p = problem.torque_max, problem.torque_norm
+    n, th, a, c, s_max = _phase_plane(problem)
     if th == 0.0:
         z = np.zeros(1)
         return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)))
     theta = np.linspace(0.0, th, n_grid + 1)
     dth = theta[1] - theta[0]
-
-    # rounding leaves ~1e-17 of n × Jn for a symmetric body or a principal axis
-    if np.linalg.norm(c) <= 1e-12 * np.linalg.norm(a):
-        c = np.zeros(3)
     fixed = _accel_interval(a, c, U, p, 0.0) if not np.any(c) else None
 
     def interval(s):
@@ -134,8 +136,7 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
         return fixed if fixed is not None else _accel_interval(a, c, U, p, min(s, s_max))
 
     if math.isinf(p):   # the compiled sweeps (this baseline runs on every indirect solve)
-        fwd, bwd = topp.sweep_per_axis(np.ascontiguousarray(a, float), np.ascontiguousarray(c, float),
-                                       np.ascontiguousarray(U, float), float(s_max), float(th), int(n_grid))
+        fwd, bwd = topp.sweep_per_axis(a, c, np.ascontiguousarray(U, float), float(s_max), float(th), int(n_grid))
     else:
         fwd, bwd = _sweep_python(interval, s_max, dth, n_grid)
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
