@@ -35,6 +35,7 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qconj, qmul
+from ..guesses import eigenaxis_axis_angle
 
 FEATURE_NAMES = ("n1", "n2", "n3", "theta_over_pi", "J1", "J2", "J3", "u1", "u2", "u3", "inv_p")
 N_FEATURES = len(FEATURE_NAMES)
@@ -61,16 +62,6 @@ def unsupported_reason(problem: SlewProblem) -> Optional[str]:
     return None
 
 
-def axis_angle(problem: SlewProblem):
-    d = qmul(qconj(problem.q0), problem.qf)
-    if d[0] < 0:
-        d = -d
-    v = float(np.linalg.norm(d[1:]))
-    if v < 1e-15:
-        return np.array([1.0, 0.0, 0.0]), 0.0
-    return d[1:] / v, 2.0 * math.atan2(v, d[0])
-
-
 def canonical_form(problem) -> CanonicalForm:
     """The canonical form of a rest-to-rest full-attitude ``problem`` (``ValueError`` otherwise)."""
     if not isinstance(problem, SlewProblem):
@@ -78,7 +69,7 @@ def canonical_form(problem) -> CanonicalForm:
     why = unsupported_reason(problem)
     if why:
         raise ValueError(why)
-    n, th = axis_angle(problem)
+    n, th = eigenaxis_axis_angle(problem)
     a = [abs(float(v)) for v in n]
     order = tuple(sorted(range(3), key=lambda i: -a[i]))   # stable: ties keep the axis order
     P = np.zeros((3, 3))

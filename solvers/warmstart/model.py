@@ -173,29 +173,33 @@ class WarmStartModel:
     # ------------------------------------------------------------------ coverage
     def covers(self, problem) -> Optional[str]:
         """``None`` if ``problem`` is in the model's family, else the reason it is not."""
-        problem = SlewProblem.from_dict(problem)
+        return self._coverage(SlewProblem.from_dict(problem))[0]
+
+    def _coverage(self, problem):
+        """``(reason or None, canonical form or None)``: the form is computed once, for the
+        range checks and then for the prediction."""
         why = unsupported_reason(problem)
         if why:
-            return why
+            return why, None
         d = self.domain
         if problem.rate_max is not None and not d.get("rate_max", False):
-            return "rate_max: the model was trained without rate limits"
+            return "rate_max: the model was trained without rate limits", None
         norm = d.get("torque_norm", "inf")
         p = problem.torque_norm
         if str(norm) != ("inf" if math.isinf(p) else repr(float(p))):
-            return f"torque_norm: the model covers torque_norm={norm}, got {p}"
+            return f"torque_norm: the model covers torque_norm={norm}, got {p}", None
         cf = canonical_form(problem)
         th_deg = math.degrees(cf.x[3] * math.pi)
         lo, hi = d.get("angle_deg", (0.0, 180.0))
         if not (lo - 1e-9 <= th_deg <= hi + 1e-9):
-            return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]"
+            return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]", cf
         rlo, rhi = d.get("inertia_ratio", (0.0, 1.0))
         if float(cf.x[4:7].min()) < rlo - 1e-9:
-            return f"inertia: J_min/J_max = {cf.x[4:7].min():.3g} below the model's range ({rlo:g})"
+            return f"inertia: J_min/J_max = {cf.x[4:7].min():.3g} below the model's range ({rlo:g})", cf
         ulo = d.get("torque_ratio_min", 1.0)
         if float(cf.x[7:10].min()) < ulo - 1e-9:
-            return f"torque_max: u_min/u_max = {cf.x[7:10].min():.3g} below the model's range ({ulo:g})"
-        return None
+            return f"torque_max: u_min/u_max = {cf.x[7:10].min():.3g} below the model's range ({ulo:g})", cf
+        return None, cf
 
     # ------------------------------------------------------------------ inference
     def forward(self, X):
@@ -244,14 +248,14 @@ class WarmStartModel:
         """``(guess, None)``, or ``(None, reason)`` when the model does not cover ``problem``
         (one coverage check: ``solvers.solve`` calls this)."""
         problem = SlewProblem.from_dict(problem)
-        why = self.covers(problem)
+        t0 = time.perf_counter()
+        why, cf = self._coverage(problem)
         if why:
             return None, why
-        t0 = time.perf_counter()
-        cf = canonical_form(problem)
         pr = self.predict_canonical(cf.x, cf.T_eig)
         c0, tf, sw, uf = solution_from_canonical(problem, cf, pr.z, pr.T, pr.times, pr.u_first)
-        self.last_inference_s = time.perf_counter() - t0   # canonical form + network + mapping back
+        # coverage checks and canonical form + network + mapping back
+        self.last_inference_s = time.perf_counter() - t0
         g = Guess(c0, tf, sw, uf, source="learned")
         if propagate:
             prop = _propagated_structure(problem, c0, tf)
