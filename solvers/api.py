@@ -379,7 +379,8 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     An unconstrained extremal that is feasible and as fast as the constrained optimum is
     the constrained optimum.
     """
-    from .clearance import bang_bang_path, certified_min_margin
+    from .clearance import certified_min_margin
+    from .verify import replay_path
     per_axis = math.isinf(prob.torque_norm)
     cc = col.verification.get("cone_clearance", {})
     if not per_axis or not prob.is_rest_to_rest or not (cc.get("value", -1.0) > INACTIVE_CONE_MARGIN):
@@ -392,7 +393,8 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
     if not (ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel)):
         return None
-    t, x = bang_bang_path(prob, ref.switch_times, ref.u_first, ref.tf)
+    t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, ref.switch_times, ref.u_first,
+                       ref.tf, steps_per_tf=8000)
     sample_min, certified = certified_min_margin(prob, t, x[:, 0:4], x[:, 4:7])
     tol = -1e-6
     ref.verification["cone_clearance"] = make_check(certified, tol, certified >= tol)

@@ -156,6 +156,7 @@ from slew_env import SlewProblem
 from slew_env.core.dynamics import state_rhs
 from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
 from slew_env.core.cones import angle_between
+from .clearance import margins
 from .guesses import Guess
 from .verify import failure_text, make_check
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
@@ -781,12 +782,7 @@ def _final_attitude_guess(prob, q_from):
 
 
 def _path_min_margin(prob, q):
-    m = math.inf
-    for c in prob.cones:
-        d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in q])
-        ang = np.arccos(np.clip(d @ c.axis, -1, 1)) - c.half_angle
-        m = min(m, float(ang.min()))
-    return m
+    return float(margins(prob, q).min()) if prob.cones else math.inf
 
 
 def _detour_guesses(sc: _Scaled, straight: _TrajGuess, clearance=math.radians(5.0)):
@@ -1005,17 +1001,6 @@ def _replay(sc: _Scaled, run: _Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
     return _Replay(np.concatenate(ts), np.vstack(xs), nf, "", u_of)
 
 
-def _margins(prob, q):
-    """Smallest clearance margin (rad) over the cones, for each row of ``q``."""
-    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
-    d = np.array([qrotate(qi, prob.sensor_axis) for qi in qn])
-    m = np.full(q.shape[0], np.inf)
-    for c in prob.cones:
-        cross = np.linalg.norm(np.cross(d, c.axis), axis=1)
-        m = np.minimum(m, np.arctan2(cross, d @ c.axis) - c.half_angle)
-    return m
-
-
 def _switches(t, u, U):
     """Approximate switch times per axis and first-arc signs from sampled torques: zero
     crossings between clearly saturated samples (``|u_i| ≥ 0.5 u_max,i``)."""
@@ -1119,9 +1104,9 @@ def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
     max_def = float(np.max(np.abs(gval[:nlp.n_eq])))
     checks["max_defect"] = make_check(max_def, tols["max_defect"], max_def <= tols["max_defect"])
     if prob.cones:
-        m = float(np.min(_margins(prob, x_all[:, 0:4])))
+        m = float(np.min(margins(prob, x_all[:, 0:4])))
         if rep.x is not None:
-            m = min(m, float(np.min(_margins(prob, rep.x[:, 0:4]))))
+            m = min(m, float(np.min(margins(prob, rep.x[:, 0:4]))))
         else:
             m = -math.inf
         checks["cone_clearance"] = make_check(m, tols["cone_clearance"], m >= tols["cone_clearance"])
@@ -1192,7 +1177,7 @@ def _interior_clearance(prob, rep: _Replay, run: _Run):
     sel = (rep.t >= tk[1]) & (rep.t <= tk[-2])
     if not np.any(sel):
         return math.inf
-    return float(np.min(_margins(prob, rep.x[sel, 0:4])))
+    return float(np.min(margins(prob, rep.x[sel, 0:4])))
 
 
 def solve_collocation(problem, *, n_intervals: int = 60, transcription: str = "hermite-simpson",

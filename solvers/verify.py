@@ -66,22 +66,32 @@ def dense_record(bvp, z, T, n=400):
     return bvp.record(z, T, hmax=T / n)
 
 
-def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
-    """State at ``tf`` from switch times and first-arc signs alone (fixed-step RK4)."""
+def replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
+    """``(t, x)``, ``x = [q, ω]``, from switch times and first-arc signs alone: fixed-step RK4
+    of the environment, about ``steps_per_tf`` steps over ``tf``, every step sampled."""
     events = sorted((float(t), i) for i in range(3) for t in switch_times[i])
     signs = np.array(u_first, dtype=float)
     x = np.concatenate([q0, w0]).astype(float)
+    ts, xs = [np.zeros(1)], [x[None, :]]
     t_prev = 0.0
     h_nom = tf / steps_per_tf
     for t_next, axis in events + [(tf, -1)]:
         dt = t_next - t_prev
         if dt > 0:
             n = max(1, int(math.ceil(dt / h_nom)))
-            x = propagate(x, umax * signs, J, dt, n)[-1]
+            traj = propagate(x, umax * signs, J, dt, n)
+            ts.append(t_prev + np.linspace(0.0, dt, n + 1)[1:])
+            xs.append(traj[1:])
+            x = traj[-1]
         if axis >= 0:
             signs[axis] = -signs[axis]
         t_prev = max(t_prev, t_next)
-    return x
+    return np.concatenate(ts), np.vstack(xs)
+
+
+def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
+    """State at ``tf`` from switch times and first-arc signs alone (``replay_path``'s last)."""
+    return replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf)[1][-1]
 
 
 def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
