@@ -9,23 +9,15 @@ from __future__ import annotations
 import numpy as np
 
 from .core import task as _t
+from .core.cones import perpendicular_basis
 
 WIDTH, HEIGHT, DPI = 960, 540, 96
-
-
-def _perpendicular(a):
-    i = int(np.argmin(np.abs(a)))
-    e = np.zeros(3)
-    e[i] = 1.0
-    e1 = np.cross(a, e)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(a, e1)
 
 
 def cone_circle(axis, half_angle, n=90):
     """Points (n, 3) of the circle where a cone of ``half_angle`` about ``axis`` meets the unit sphere."""
     axis = np.asarray(axis, dtype=float)
-    e1, e2 = _perpendicular(axis)
+    e1, e2 = perpendicular_basis(axis)
     phi = np.linspace(0.0, 2.0 * np.pi, n)
     return (np.cos(half_angle) * axis[None, :]
             + np.sin(half_angle) * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))

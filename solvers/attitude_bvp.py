@@ -41,6 +41,7 @@ from typing import Optional
 
 import numpy as np
 
+from slew_env.core.cones import perpendicular_basis
 from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
 from .core import attitude_flow as af
 
@@ -110,12 +111,7 @@ class AttitudeBVP:
             self.qf = qmul(r, self.q0)
             self.qf /= np.linalg.norm(self.qf)
             # e1, e2: an orthonormal basis of the plane orthogonal to the sensor
-            k = int(np.argmin(np.abs(self.s_b)))
-            e = np.zeros(3)
-            e[k] = 1.0
-            e1 = np.cross(self.s_b, e)
-            e1 /= np.linalg.norm(e1)
-            self._e = np.array([e1, np.cross(self.s_b, e1)])
+            self._e = np.array(perpendicular_basis(self.s_b))
             self.ref_problem = problem.replace(qf=self.qf, sensor_target=None)
         else:
             self.qf = problem.qf.copy()

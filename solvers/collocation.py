@@ -155,7 +155,7 @@ import numpy as np
 from slew_env import SlewProblem
 from slew_env.core.dynamics import state_rhs
 from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
-from slew_env.core.cones import angle_between
+from slew_env.core.cones import angle_between, perpendicular_basis
 from .clearance import margins
 from .guesses import Guess
 from .verify import failure_text, make_check
@@ -205,17 +205,6 @@ def _qexp_body(q0, n, theta):
     d = np.stack([np.cos(0.5 * th), n[0] * np.sin(0.5 * th), n[1] * np.sin(0.5 * th),
                   n[2] * np.sin(0.5 * th)], axis=-1)
     return np.array([qmul(q0, di) for di in d.reshape(-1, 4)]).reshape(d.shape)
-
-
-def _perp_pair(v):
-    """Orthonormal ``e1, e2`` orthogonal to unit ``v``."""
-    i = int(np.argmin(np.abs(v)))
-    a = np.zeros(3)
-    a[i] = 1.0
-    e1 = np.cross(v, a)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(v, e1)
-    return e1, e2
 
 
 @dataclass
@@ -564,7 +553,7 @@ class _NLP:
         P[ip["J"]:ip["J"] + 3] = sc.J
         P[ip["U"]:ip["U"] + 3] = sc.U
         if prob.is_pointing:
-            e1, e2 = _perp_pair(prob.sensor_target)
+            e1, e2 = perpendicular_basis(np.asarray(prob.sensor_target, float))
             P[ip["tdat"]:ip["tdat"] + 9] = np.concatenate([e1, e2, prob.sensor_target])
         else:
             P[ip["tdat"]:ip["tdat"] + 4] = prob.qf

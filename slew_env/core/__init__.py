@@ -12,7 +12,7 @@ from .dynamics import (
     STATE_DIM, euler_rate, state_rhs, rk4_step, propagate, torque_from_action,
     kinetic_energy,
 )
-from .cones import angle_between, cone_margins, cone_margins_inertial, min_cone_margin
+from .cones import angle_between, cone_margins, cone_margins_inertial, min_cone_margin, perpendicular_basis
 from . import task
 
 __all__ = [
@@ -21,6 +21,6 @@ __all__ = [
     "quat_from_euler321", "quat_from_euler321_deg",
     "STATE_DIM", "euler_rate", "state_rhs", "rk4_step", "propagate",
     "torque_from_action", "kinetic_energy",
-    "angle_between", "cone_margins", "cone_margins_inertial", "min_cone_margin",
+    "angle_between", "cone_margins", "cone_margins_inertial", "min_cone_margin", "perpendicular_basis",
     "task",
 ]

@@ -22,6 +22,23 @@ def angle_between(a, b):
 
 
 @njit(cache=True)
+def perpendicular_basis(s):
+    """Two unit vectors completing unit ``s`` to a right-handed orthonormal basis
+    (``e1 = s × x_k`` normalised, ``x_k`` the axis least aligned with ``s``; ``e2 = s × e1``)."""
+    i = 0
+    if abs(s[1]) < abs(s[i]):
+        i = 1
+    if abs(s[2]) < abs(s[i]):
+        i = 2
+    ax = np.zeros(3)
+    ax[i] = 1.0
+    e1 = np.cross(s, ax)
+    e1 /= np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    e2 = np.cross(s, e1)
+    return e1, e2
+
+
+@njit(cache=True)
 def cone_margins_inertial(s_i, axes, half_angles, n_cones):
     """Margins of the inertial sensor direction ``s_i`` to the first ``n_cones`` cones."""
     out = np.empty(n_cones)

@@ -36,7 +36,7 @@ from numba import njit
 
 from . import task as _t
 from .quaternion import qfrom_uniform, qfrom_axis_angle, qmul, qrotate
-from .cones import angle_between
+from .cones import angle_between, perpendicular_basis
 
 # --- layout of the ``dist`` parameter array -----------------------------------
 D_ANGLE_MIN = 0       # slew angle range (rad)
@@ -81,22 +81,6 @@ def _uniform_axis(u1, u2):
     out[1] = r * np.sin(phi)
     out[2] = z
     return out
-
-
-@njit(cache=True)
-def _perpendicular_basis(s):
-    """Two unit vectors completing ``s`` to a right-handed orthonormal basis."""
-    i = 0
-    if abs(s[1]) < abs(s[i]):
-        i = 1
-    if abs(s[2]) < abs(s[i]):
-        i = 2
-    ax = np.zeros(3)
-    ax[i] = 1.0
-    e1 = np.cross(s, ax)
-    e1 /= np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
-    e2 = np.cross(s, e1)
-    return e1, e2
 
 
 @njit(cache=True)
@@ -148,7 +132,7 @@ def sample_task(dist, u, task):
 
         start = qrotate(q0, sensor)
         if pointing:
-            e1, e2 = _perpendicular_basis(start)
+            e1, e2 = perpendicular_basis(start)
             psi = 2.0 * np.pi * ua
             m = np.cos(psi) * e1 + np.sin(psi) * e2
             target = _normalized(np.cos(theta) * start + np.sin(theta) * m)
@@ -162,7 +146,7 @@ def sample_task(dist, u, task):
         e = target - np.dot(start, target) * start
         ne = np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
         if ne < 1e-9:  # (anti)parallel: every great circle through start is a short path
-            e, _ = _perpendicular_basis(start)
+            e, _ = perpendicular_basis(start)
         else:
             e = e / ne
         normal = np.cross(start, e)
