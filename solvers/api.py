@@ -336,19 +336,12 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
         col.wall_time = spent()
         return col
     if col.success:
-        g = Guess(col.costate0, col.tf, col.switch_times if math.isinf(prob.torque_norm) else None,
-                  col.u_first if math.isinf(prob.torque_norm) else None, source="collocation")
         # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
         # problem, where the λω = 0 instant makes a near guess hard to refine)
-        opts = dict(options, max_candidates=2, min_candidates=1, enough=1,
-                    time_budget=max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
-        ref = _solve_indirect(prob, "indirect", g, **opts)
-        # the refined extremal must be the one collocation found (or better), not another
-        col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
-        if ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel):
+        ref, accepted = _refine_collocation(prob, col, options, 2,
+                                            max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+        if accepted:
             ref.route = f"auto: collocation ({col.wall_time:.3g} s) → indirect refinement: {ref.route}"
-            ref.nit += col.nit
-            ref.nfev += col.nfev
             ref.wall_time = spent()
             return ref
         why = ref.message if not ref.success else (
@@ -362,6 +355,24 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()
     return ind
+
+
+def _refine_collocation(target, col, options, max_candidates, budget):
+    """The exact extremal of ``target`` from a collocation answer's costates and switching
+    structure: ``(solution, accepted)``. Accepted only if verified and not slower than the
+    collocation answer (beyond its tolerance): the refined extremal must be the one
+    collocation found, or a better one, not another local optimum."""
+    per_axis = math.isinf(target.torque_norm)
+    g = Guess(col.costate0, col.tf, col.switch_times if per_axis else None, col.u_first if per_axis else None,
+              source="collocation")
+    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=1, time_budget=budget)
+    ref = _solve_indirect(target, "indirect", g, **opts)
+    col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
+    accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel))
+    if accepted:
+        ref.nit += col.nit
+        ref.nfev += col.nfev
+    return ref, accepted
 
 
 # a cone whose clearance on the collocation answer exceeds this (rad) is taken as inactive
@@ -385,13 +396,8 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     cc = col.verification.get("cone_clearance", {})
     if not per_axis or not prob.is_rest_to_rest or not (cc.get("value", -1.0) > INACTIVE_CONE_MARGIN):
         return None
-    free = prob.replace(cones=[])
-    g = Guess(col.costate0, col.tf, col.switch_times, col.u_first, source="collocation")
-    opts = dict(options, max_candidates=1, min_candidates=1, enough=1,
-                time_budget=max(0.5, min(2.0, budget_left)))
-    ref = _solve_indirect(free, "indirect", g, **opts)
-    col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
-    if not (ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel)):
+    ref, accepted = _refine_collocation(prob.replace(cones=[]), col, options, 1, max(0.5, min(2.0, budget_left)))
+    if not accepted:
         return None
     t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, ref.switch_times, ref.u_first,
                        ref.tf, steps_per_tf=8000)
@@ -403,8 +409,6 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     ref.problem = prob
     ref.route = (f"auto: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
                  f"indirect refinement without cones: {ref.route}; certified clearance {certified:.3g} rad")
-    ref.nit += col.nit
-    ref.nfev += col.nfev
     return ref
 
 
