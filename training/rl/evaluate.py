@@ -550,14 +550,9 @@ def run(args) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m training.rl.evaluate", description=__doc__.split("\n")[0])
-    add_arguments(p)
-    args = p.parse_args(argv)
-    try:
-        return run(args)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"evaluate-rl: error: {e}", file=sys.stderr)
-        return 2
+    """``python -m training.rl.evaluate`` is ``slew evaluate-rl`` (same options, same error handling)."""
+    from training.cli import main as slew
+    return slew(["evaluate-rl", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":
