@@ -91,11 +91,14 @@ class AttitudeBVP:
     """
     n_y = NY
     n_p = 6
+    handles_cones = False   # subclasses that put the cones in the flow say so
+    pen = np.zeros(0)       # packed cone penalty of the flow (core.cone_penalty): none
 
     def __init__(self, problem, mode="bang", p=None, eps=1e-2, rtol=1e-12, atol=1e-13,
                  max_switches=200):
-        if problem.cones:
-            raise ValueError("cones: the indirect solver does not handle keep-out cones yet")
+        if problem.cones and not self.handles_cones:
+            raise ValueError("cones: the exact indirect solver does not handle keep-out cones "
+                             "(see solvers.cone_penalty for the penalised route)")
         self.problem = problem
         Jmax = float(problem.inertia.max())
         umax = float(problem.torque_max.max())
@@ -192,7 +195,7 @@ class AttitudeBVP:
         Y, s_end, n_rec, n_sw, steps, status = af.flow(
             Y0, float(duration), m, self.J, self.umax, self.mode, self.p, self.eps, signs,
             self.rtol, self.atol, h0, 200000, self.max_switches, rec_t, rec_Y, rec_s, sw_t, sw_a,
-            detect, hmax)
+            self.pen, detect, hmax)
         return Y, s_end, n_rec, n_sw, steps, status, rec_t, rec_Y, rec_s, sw_t, sw_a, signs
 
     def flow(self, y0, duration, Phi0):

@@ -4,6 +4,8 @@ import pytest
 
 from solvers.core import attitude_flow as af
 
+NO_PENALTY = np.zeros(0)
+
 J = np.array([1.0, 0.8, 0.4])
 UMAX = np.array([1.0, 0.7, 0.9])
 
@@ -50,7 +52,7 @@ def _run(y0, m, tf=3.0):
     sw_t = np.zeros(50)
     sw_a = np.zeros(50, dtype=np.int64)
     out = af.flow(Y0, tf, m, J, UMAX, af.MODE_BANG, 0.0, 1.0, signs, 1e-12, 1e-13, 0.05, 100000, 40,
-                  np.zeros(0), np.zeros((0, 14)), np.zeros((0, 3)), sw_t, sw_a)
+                  np.zeros(0), np.zeros((0, 14)), np.zeros((0, 3)), sw_t, sw_a, NO_PENALTY)
     return out, sw_t, sw_a
 
 
@@ -95,7 +97,7 @@ def test_hamiltonian_is_conserved_across_switches():
     signs = -np.sign(y0[11:] / J)
     _, _, n_rec, n_sw, _, status = af.flow(y0.copy(), 3.0, 0, J, UMAX, af.MODE_BANG, 0.0, 1.0, signs, 1e-12,
                                            1e-13, 0.05, 100000, 40, rec_t, rec_Y, rec_s,
-                                           np.zeros(50), np.zeros(50, dtype=np.int64))
+                                           np.zeros(50), np.zeros(50, dtype=np.int64), NO_PENALTY)
     H = [af.hamiltonian(rec_Y[k], J, UMAX, af.MODE_BANG, 0.0, 1.0, rec_s[k]) for k in range(n_rec)]
     assert n_sw >= 2
     assert np.max(np.abs(np.array(H) - H[0])) < 1e-10

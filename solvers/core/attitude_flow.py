@@ -29,6 +29,7 @@ from numba import njit
 from scipy.integrate._ivp import dop853_coefficients as _dop
 
 from slew_env.core.dynamics import state_rhs_scalar
+from .cone_penalty import penalty_jac_into, penalty_rhs_into
 
 NY = 14
 MODE_BANG = 0
@@ -235,17 +236,24 @@ def ext_jac_into(y, J, dudl, A):
 
 
 @njit(cache=True)
-def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out, A):
+def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, pen, out, A):
     """Derivative of ``[y, Φ]`` (Φ row-major 14 x m), written into ``out``; ``A`` is a
-    14x14 work array that started as zeros (see ``ext_jac_into``)."""
+    14x14 work array that started as zeros (see ``ext_jac_into``). ``pen`` is a packed
+    keep-out-cone penalty (``cone_penalty.pack``; empty: none)."""
     y = Y[:NY]
     if mode == MODE_BANG and m == 0:   # a bang-bang arc without sensitivities: no allocation
         ext_rhs_into(y, umax[0] * signs[0], umax[1] * signs[1], umax[2] * signs[2], J, out)
+        if pen.shape[0] > 0:
+            penalty_rhs_into(y, pen, out)
         return
     u, dudl = control(y, J, umax, mode, p, eps, signs)
     ext_rhs_into(y, u[0], u[1], u[2], J, out)
+    if pen.shape[0] > 0:
+        penalty_rhs_into(y, pen, out)
     if m > 0:
         ext_jac_into(y, J, dudl, A)
+        if pen.shape[0] > 0:
+            penalty_jac_into(y, pen, A)
         # Φ̇ = A Φ; A is about half zeros, and the BLAS call costs more than it saves here
         for i in range(NY):
             base = NY + i * m
@@ -260,15 +268,15 @@ def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out, A):
 
 
 @njit(cache=True)
-def full_rhs(Y, m, J, umax, mode, p, eps, signs):
+def full_rhs(Y, m, J, umax, mode, p, eps, signs, pen):
     """Derivative of ``[y, Φ]`` (Φ row-major 14 x m)."""
     out = np.empty(NY + NY * m)
-    full_rhs_into(Y, m, J, umax, mode, p, eps, signs, out, np.zeros((NY, NY)))
+    full_rhs_into(Y, m, J, umax, mode, p, eps, signs, pen, out, np.zeros((NY, NY)))
     return out
 
 
 @njit(cache=True)
-def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0):
+def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, pen, K0):
     """One DOP853 step; returns ``(Y_new, K)`` with the 13 stage derivatives in ``K``."""
     n = Y.shape[0]
     K = np.empty((13, n))
@@ -283,14 +291,14 @@ def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0):
                 if a != 0.0:
                     acc += a * K[j, i]
             Ys[i] = Y[i] + h * acc
-        full_rhs_into(Ys, m, J, umax, mode, p, eps, signs, K[s], A)
+        full_rhs_into(Ys, m, J, umax, mode, p, eps, signs, pen, K[s], A)
     Ynew = np.empty(n)
     for i in range(n):
         acc = 0.0
         for j in range(_NS):
             acc += _B[j] * K[j, i]
         Ynew[i] = Y[i] + h * acc
-    full_rhs_into(Ynew, m, J, umax, mode, p, eps, signs, K[12], A)
+    full_rhs_into(Ynew, m, J, umax, mode, p, eps, signs, pen, K[12], A)
     return Ynew, K
 
 
@@ -320,7 +328,7 @@ def switching(Y, J):
 
 @njit(cache=True)
 def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, max_switches,
-         rec_t, rec_Y, rec_signs, sw_t, sw_axis, detect=True, hmax=np.inf):
+         rec_t, rec_Y, rec_signs, sw_t, sw_axis, pen, detect=True, hmax=np.inf):
     """Integrate ``[y, Φ]`` from t=0 to ``tf`` (> 0).
 
     ``signs0`` is the bang-bang sign vector of the first arc (ignored by the
@@ -336,7 +344,7 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
     Y = Y0.copy()
     signs = signs0.copy()
     t = 0.0
-    K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs)
+    K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs, pen)
     h = min(h0, tf)
     n_rec = 0
     cap = rec_t.shape[0]
@@ -363,7 +371,7 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
                 break
             status = FLOW_STEP_UNDERFLOW
             break
-        Ynew, K = _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, K0)
+        Ynew, K = _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, pen, K0)
         steps += 1
         err = _err_norm(Y, Ynew, K, h, rtol, atol)
         if not (err == err) or not np.isfinite(Ynew[0]):
@@ -381,13 +389,13 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
             first_ax = -1
             for i in range(3):
                 if signs[i] * (Ynew[11 + i] / J[i]) > 0.0:
-                    tau = _locate_switch(Y, h, m, J, umax, signs, K0, i)
+                    tau = _locate_switch(Y, h, m, J, umax, signs, pen, K0, i)
                     if tau < first_tau:
                         first_tau = tau
                         first_ax = i
             if first_ax >= 0:
                 if first_tau < h:
-                    Ynew, K = _dop853_step(Y, first_tau, m, J, umax, mode, p, eps, signs, K0)
+                    Ynew, K = _dop853_step(Y, first_tau, m, J, umax, mode, p, eps, signs, pen, K0)
                 t += first_tau
                 Y = Ynew
                 if cap > 0 and n_rec < cap:
@@ -412,7 +420,7 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
                 if n_sw > max_switches:
                     status = FLOW_TOO_MANY_SWITCHES
                     break
-                K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs)
+                K0 = full_rhs(Y, m, J, umax, mode, p, eps, signs, pen)
                 if cap > 0 and n_rec < cap:
                     rec_t[n_rec] = t
                     rec_Y[n_rec] = Y[:NY]
@@ -433,7 +441,7 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
 
 
 @njit(cache=True)
-def _locate_switch(Y, h, m, J, umax, signs, K0, axis):
+def _locate_switch(Y, h, m, J, umax, signs, pen, K0, axis):
     """Step length τ in (0, h] at which ``S_axis`` crosses zero (Newton, bracketed).
 
     Each evaluation is one exact DOP853 step of length τ from the step start
@@ -446,14 +454,14 @@ def _locate_switch(Y, h, m, J, umax, signs, K0, axis):
     s_lo = Yc[11 + axis] / J[axis]
     tau = h * 0.5
     # secant start from the end points
-    Yh, Kh = _dop853_step(Yc, h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, K0c)
+    Yh, Kh = _dop853_step(Yc, h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0c)
     s_hi = Yh[11 + axis] / J[axis]
     if s_hi != s_lo:
         tau = h * s_lo / (s_lo - s_hi)
     if not (tau > 0.0 and tau < h):
         tau = 0.5 * h
     for it in range(60):
-        Yt, Kt = _dop853_step(Yc, tau, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, K0c)
+        Yt, Kt = _dop853_step(Yc, tau, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0c)
         s = Yt[11 + axis] / J[axis]
         sd = Kt[12][11 + axis] / J[axis]
         if (s > 0.0) == (s_lo > 0.0):
