@@ -2,8 +2,9 @@
 
 Draws N problems from the environment's ``pointing-cones`` family (seeded) and solves each
 with ``method="collocation"``, ``"indirect"`` and ``"auto"``; prints, per method, the
-verified success rate (and how many answers are exact extremals: ``auto`` refines problems
-whose cones are inactive), median / 95th-percentile wall time, median final time, the worst
+verified success rate (and how many answers are exact extremals: ``auto`` and ``indirect``
+refine problems whose cones are inactive; and how many are the ``indirect`` route's penalised
+extremals, for active cones), median / 95th-percentile wall time, median final time, the worst
 cone clearance of the verified answers, and the ratio of each method's time to
 collocation's on the same problems.
 
@@ -44,9 +45,9 @@ def main(argv=None):
                 s = solvers.solve(p, method=m)
                 rows[m].append((s.success, time.perf_counter() - t0, s.tf,
                                 s.verification.get("cone_clearance", {}).get("value", np.nan), "",
-                                s.success and s.method in ("indirect", "multiple-shooting")))
+                                s.exact, "penalty homotopy" in s.route))
             except ValueError as e:   # the indirect route declines cones (clear error)
-                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False))
+                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False, False))
         print(f"\r{k + 1}/{len(probs)}", end="", file=sys.stderr)
     print(file=sys.stderr)
     ncones = [len(p.cones) for p in probs]
@@ -60,7 +61,9 @@ def main(argv=None):
         tf = np.array([x[2] for x in r])
         clr = np.array([x[3] for x in r])
         exact = int(sum(x[5] for x in r))
-        line = f"  {m:12s} verified {ok.sum():3d}/{len(r)} = {100 * ok.mean():5.1f} % ({exact} exact extremals)"
+        pen = int(sum(x[0] and x[6] for x in r))
+        line = (f"  {m:12s} verified {ok.sum():3d}/{len(r)} = {100 * ok.mean():5.1f} % ({exact} exact extremals"
+                + (f", {pen} penalised" if pen else "") + ")")
         if ok.any():
             line += (f"   wall median {1e3 * np.median(t[ok]):7.1f} ms  p95 {1e3 * np.percentile(t[ok], 95):7.1f} ms"
                      f"   tf median {np.median(tf[ok]):.5f}"

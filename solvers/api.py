@@ -9,6 +9,12 @@ Methods:
 * ``"multiple-shooting"`` — the same routes with every shooting stage done on
   ``segments`` segments (default 4); the per-axis answer is polished by event-driven
   multiple shooting.
+* ``"indirect"`` / ``"multiple-shooting"`` with keep-out cones — seeded by collocation
+  (or the given guess's costates): cones inactive on the collocation answer give the exact
+  extremal of the problem without cones, with a certified clearance; a path that touches or
+  rides a cone goes to the penalty homotopy (``solvers.cone_penalty``): the verified
+  extremal of a penalised, smoothed problem that clears every cone at every instant, an
+  approximation of the constrained optimum (its tf gap to collocation's is reported).
 * ``"collocation"`` — direct collocation (Hermite–Simpson, IPOPT; ``solvers.collocation``):
   approximate, with costate estimates; handles keep-out cones and pointing-only targets.
 * ``"auto"`` (default) — a given guess first (warm start); then collocation and the exact
@@ -40,7 +46,7 @@ from typing import Optional
 import numpy as np
 
 from slew_env import SlewProblem
-from .attitude_bvp import AttitudeBVP, NY
+from .attitude_bvp import AttitudeBVP
 from .core import attitude_flow as af
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solve_structure
@@ -197,7 +203,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     verified, the classical route runs as if there were no model. ``SlewSolution.warm_start``
     records what happened and ``guess`` which candidate won.
 
-    Options of the indirect routes: ``segments`` (multiple shooting, default 4),
+    Options of the indirect routes: ``segments`` (multiple shooting, default 4; the cone
+    penalty route of an indirect solve with active cones: default 32, at least 2),
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
@@ -248,6 +255,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         # in well under a second when it does), so its budget is cut from 2 s
         failed_warm = bool(info.get("covered")) and not info.get("succeeded")
         sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0)
+    elif prob.cones:
+        sol = _solve_indirect_cones(prob, guess, col_opts, rest)
     else:
         sol = _solve_indirect(prob, method, guess, **rest)
     if info:
@@ -410,6 +419,39 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     ref.route = (f"auto: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
                  f"indirect refinement without cones: {ref.route}; certified clearance {certified:.3g} rad")
     return ref
+
+
+def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
+    """The indirect route for a problem with keep-out cones (see the module docstring)."""
+    from .collocation import solve_collocation
+    from .cone_penalty import SEGMENTS, solve_penalised
+    t0 = time.perf_counter()
+    budget = float(options.get("time_budget", 60.0))
+    if not math.isinf(prob.torque_norm):
+        raise ValueError(f"torque_norm: with keep-out cones the indirect route handles the per-axis bound "
+                         f"('inf') only, got p = {prob.torque_norm:g}; use method='collocation' or 'auto'")
+    segments = int(options.get("segments", SEGMENTS))
+    if segments < 2:
+        raise ValueError(f"segments: the cone penalty route uses multiple shooting, needs ≥ 2, got {segments}")
+    col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget)}, **col_opts))
+    if not col.success:
+        col.success = False
+        col.method = "indirect"
+        col.route = f"indirect with cones: collocation seed failed ({col.message[:200]})"
+        col.wall_time = time.perf_counter() - t0
+        return col
+    ref = _refine_inactive_cones(prob, col, options, budget - (time.perf_counter() - t0))
+    if ref is not None:
+        ref.route = ref.route.replace("auto: ", "indirect with cones: ", 1)
+        ref.wall_time = time.perf_counter() - t0
+        return ref
+    sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
+                          time_budget=max(1.0, budget - (time.perf_counter() - t0)))
+    sol.nit += col.nit
+    sol.nfev += col.nfev
+    sol.route = f"indirect with cones: collocation ({col.wall_time:.3g} s, tf {col.tf:.6g}) → {sol.route}"
+    sol.wall_time = time.perf_counter() - t0
+    return sol
 
 
 def _solve_indirect(prob, method, guess, first_verified=False, **options) -> SlewSolution:

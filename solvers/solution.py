@@ -32,12 +32,14 @@ class SlewSolution:
     ``message``, ``nit`` (Newton iterations, all candidates), ``nfev`` (propagations),
     ``wall_time`` (s). Then, in the problem's units: ``tf`` and its tolerance ``tf_tol``; ``costate0 = [λq(0), λω(0)]``
     in the gauge ``λq(0)·q(0) = 0`` and the scale ``H ≡ -1``; ``switch_times`` (3 arrays,
-    bang-bang only, empty for a p-norm bound); ``u_first`` (sign of each axis's first arc);
+    bang-bang only; empty for a p-norm bound and for the smooth control of a penalised cone
+    answer, whose ``costate0`` is at the scale ``λ0 = 1``); ``u_first`` (sign of each axis's first arc);
     dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``;
     ``method``, ``route`` (how the answer was reached), ``guess`` (which guess won);
     ``n_candidates`` tried and ``candidates_tf`` (final times of all converged
     candidates, the local optima seen); ``baseline_tf`` (the eigenaxis slew's time, for
-    rest-to-rest problems); ``verification`` (dict of checks); ``warm_start`` (the learned
+    rest-to-rest problems); ``verification`` (dict of checks); ``exact`` (a verified exact
+    extremal, not an approximation: see the property); ``warm_start`` (the learned
     warm start: ``model``, ``covered`` or the ``reason`` it was not, ``succeeded``,
     ``candidates`` tried, ``time_s`` spent on it, ``inference_s``).
     """
@@ -75,6 +77,14 @@ class SlewSolution:
         return self._control(t)
 
     @property
+    def exact(self) -> bool:
+        """A verified exact extremal of the problem as posed: an indirect answer that is not
+        the penalised extremal of the cone route (``verification['regularisation']``).
+        Collocation and penalised answers are approximations of the optimum."""
+        return bool(self.success and self.method in ("indirect", "multiple-shooting")
+                    and "regularisation" not in self.verification)
+
+    @property
     def n_switches(self) -> int:
         return int(sum(len(s) for s in self.switch_times))
 
@@ -105,7 +115,7 @@ class SlewSolution:
                 return bool(x)
             return x
         d = {
-            "success": self.success, "status": self.status, "message": self.message,
+            "success": self.success, "status": self.status, "message": self.message, "exact": self.exact,
             "tf": self.tf, "tf_tol": self.tf_tol, "costate0": self.costate0, "switch_times": self.switch_times,
             "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
             "wall_time_s": self.wall_time, "method": self.method, "route": self.route,

@@ -17,6 +17,7 @@ from slew_env.core.dynamics import state_rhs
 from solvers.collocation import (DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, cones_block_every_path,
                                  solve_collocation)
 from solvers.guesses import Guess
+from reference_cases import melton
 
 R3_QF = quat_from_euler321_deg(-20.0, 10.0, 90.0)
 R3_TF_PER_AXIS = 2.3540178          # indirect (REFERENCE_CASES R3)
@@ -24,15 +25,6 @@ R3_TF_P2 = 2.5596                   # published (independent 2.55956)
 R5_QF = [math.cos(math.radians(75)), math.sin(math.radians(75)), 0.0, 0.0]
 R5_TF = 28.6304                     # published (Betts / Fleming)
 R5_LOCAL_OPTIMA = (29.135, 29.42, 34.31)   # seen from plain guesses (29.135: REFERENCE_CASES)
-
-
-def melton(alpha_deg, theta_deg, cone=True):
-    """R4: sensor e1 starts on the cone boundary; target e1 turned by θ about the cone axis."""
-    al, th = math.radians(alpha_deg), math.radians(theta_deg)
-    a = np.array([math.cos(al), math.sin(al), 0.0])
-    e1 = np.array([1.0, 0.0, 0.0])
-    b = e1 * math.cos(th) - np.cross(e1, a) * math.sin(th) + (e1 @ a) * a * (1 - math.cos(th))
-    return SlewProblem([1, 1, 1], q0=[1, 0, 0, 0], sensor_target=b, cones=[Cone(a, al)] if cone else [])
 
 
 def _assert_verified(sol):

@@ -118,17 +118,17 @@ def test_small_local_run_two_workers(tmp_path):
 
 
 def test_pointing_cones_records_failures_with_reason(tmp_path, capsys):
-    # the indirect route declines cones: every record is a failure with that reason
+    # options the cone route refuses (single shooting): every record is a failure with that reason
     out = tmp_path / "c.jsonl"
     code = main(["generate", "--family", "pointing-cones", "--n", "4", "--seed", "1", "-o", str(out),
                  "--workers", "1", "--no-progress", "--max-candidates", "2",
-                 "--solve-options", '{"method": "indirect"}'])
+                 "--solve-options", '{"method": "indirect", "segments": 1}'])
     assert code == 0
     recs = load(out)
     assert [r["index"] for r in recs] == [0, 1, 2, 3]
     for r in recs:
         assert r["success"] is False and r["status"] == STATUS_REJECTED and r["exact"] is None
-        assert "cones" in r["message"] and "not supported" in r["message"]
+        assert "segments" in r["message"] and "multiple shooting" in r["message"]
         assert r["problem"]["sensor_target"] is not None and 1 <= len(r["problem"]["cones"]) <= 3
     assert "4 failed" in capsys.readouterr().out
     # same file, other family: refused with a clear one-line error

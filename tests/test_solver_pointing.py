@@ -89,11 +89,13 @@ def test_pointing_error_is_accurate_for_tiny_angles():
     assert b.pointing_error(q) == pytest.approx(1e-10, rel=1e-6)
 
 
-def test_cones_still_go_to_collocation():
+def test_the_exact_bvp_rejects_cones():
+    """The bang-bang shooting problem has no cone terms: it must refuse a cone problem
+    rather than ignore the cones (the penalty route is solvers.cone_penalty)."""
     p = SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=[0.0, 1.0, 0.0],
                     cones=[{"axis": [0.7071, 0.7071, 0.0], "half_angle_deg": 10.0}])
     with pytest.raises(ValueError, match="cones"):
-        solve(p, method="indirect")
+        AttitudeBVP(p)
 
 
 def test_inactive_cones_are_refined_to_the_exact_extremal_with_certified_clearance():

@@ -14,10 +14,14 @@ def _prob(**kw):
     return SlewProblem(**d)
 
 
-def test_cones_rejected_by_the_indirect_route_until_supported():
+def test_full_attitude_target_with_an_inactive_cone_by_the_indirect_route():
+    """R1's 180° slew with a cone its optimal path avoids: the indirect route refines the
+    collocation seed to the exact extremal without the cone, with a certified clearance."""
     p = _prob(cones=[{"axis": [0, 1, 0], "half_angle_deg": 20}])
-    with pytest.raises(ValueError, match=r"^cones: .*not supported.*method='auto' or 'collocation'"):
-        solvers.solve(p, method="indirect")
+    s = solvers.solve(p, method="indirect")
+    assert s.success and s.exact and "cones inactive" in s.route
+    assert s.tf == pytest.approx(3.24308, rel=1e-5)   # R1: the cone changes nothing
+    assert s.verification["cone_clearance"]["value"] > 0.1
 
 
 def test_pointing_target_by_multiple_shooting():
