@@ -14,7 +14,11 @@ Panels, all against time in the problem's units:
    ``u_i = -u_max,i sign S_i``, so every crossing is a switch);
 5. the Hamiltonian ``H = λqᵀ q̇ + λωᵀ ω̇`` evaluated from the dense samples with the
    environment's dynamics (``slew_env.core.dynamics.state_rhs``). In the reporting scale
-   of ``SlewSolution`` (``λ0 = 1`` dropped) it is ``-1`` and constant along an extremal.
+   of ``SlewSolution`` (``λ0 = 1`` dropped) it is ``-1`` and constant along an extremal
+   (for a penalised cone answer, ``-(1 + P + ε Σφ)``: within about ``3 ε ln 2`` of -1).
+
+``plot_sensor_path``: the sensor's direction on the unit sphere with the keep-out cones,
+the start and the target, and each cone's clearance margin over time.
 """
 from __future__ import annotations
 
@@ -138,6 +142,76 @@ def plot_solution(sol, path=None, dpi=120):
         ax.set_xlim(float(t[0]), float(t[-1]))
     fig.suptitle(f"tf = {sol.tf:.10g}   method = {sol.method or '?'}   success = {sol.success}", fontsize=12)
     fig.tight_layout(rect=(0, 0, 1, 0.98))
+    if path is not None:
+        fig.savefig(path, dpi=dpi, format="png")
+    return fig
+
+
+def cone_margins_along(sol) -> np.ndarray:
+    """Clearance margin (rad) of each cone at the dense samples of ``sol``: (n, n_cones)."""
+    from .clearance import sensor_directions
+
+    _require_trajectory(sol)
+    d = sensor_directions(np.asarray(sol.q, dtype=float), sol.problem.sensor_axis)
+    cols = [np.arctan2(np.linalg.norm(np.cross(d, c.axis), axis=1), d @ c.axis) - c.half_angle
+            for c in sol.problem.cones]
+    return np.stack(cols, axis=1) if cols else np.zeros((d.shape[0], 0))
+
+
+def plot_sensor_path(sol, path=None, dpi=120):
+    """The sensor's inertial direction on the unit sphere, with the keep-out cones (their
+    boundary circles), the start and the target; and each cone's clearance margin over time.
+
+    For pointing slews and slews with cones (``slew solve --plot`` writes it next to the
+    main figure). Returns the ``Figure``.
+    """
+    from slew_env.core.cones import perpendicular_basis
+    from .clearance import sensor_directions
+
+    t = _require_trajectory(sol)
+    prob = sol.problem
+    d = sensor_directions(np.asarray(sol.q, dtype=float), prob.sensor_axis)
+    fig = _new_figure(path, (11.0, 5.0))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    # a faint wire sphere for orientation
+    lat, lon = np.meshgrid(np.linspace(-np.pi / 2, np.pi / 2, 13), np.linspace(0.0, 2 * np.pi, 25))
+    ax.plot_wireframe(np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat), color="0.85", lw=0.4)
+    phi = np.linspace(0.0, 2 * np.pi, 181)
+    for k, c in enumerate(prob.cones):
+        e1, e2 = (np.asarray(v, dtype=float) for v in perpendicular_basis(np.asarray(c.axis, dtype=float)))
+        ring = (np.cos(c.half_angle) * np.asarray(c.axis)[None, :]
+                + np.sin(c.half_angle) * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
+        ax.plot(ring[:, 0], ring[:, 1], ring[:, 2], color="tab:red", lw=1.2, label="keep-out cones" if k == 0 else None)
+    ax.plot(d[:, 0], d[:, 1], d[:, 2], color="tab:blue", lw=1.8, label="sensor path")
+    ax.scatter(*d[0], color="tab:green", s=40, label="start")
+    target = (np.asarray(prob.sensor_target, dtype=float) if prob.sensor_target is not None else d[-1])
+    target = target / np.linalg.norm(target)
+    ax.scatter(*target, color="k", marker="x", s=60, label="target")
+    ax.set_box_aspect((1, 1, 1))
+    # look at the sphere from the middle of the path, so the path is seen face-on
+    c = d.mean(axis=0) + target
+    if np.linalg.norm(c) > 1e-9:
+        c = c / np.linalg.norm(c)
+        ax.view_init(elev=float(np.degrees(np.arcsin(np.clip(c[2], -1.0, 1.0)))),
+                     azim=float(np.degrees(np.arctan2(c[1], c[0]))))
+    ax.set_title("sensor direction (inertial)", fontsize=10, loc="left")
+    ax.legend(loc="upper left", fontsize=8)
+
+    axm = fig.add_subplot(1, 2, 2)
+    m = cone_margins_along(sol)
+    for k in range(m.shape[1]):
+        axm.plot(t, np.degrees(m[:, k]), label=f"cone {k + 1}")
+    axm.axhline(0.0, color="k", lw=0.8)
+    axm.set_xlabel("t (problem time units)")
+    axm.set_ylabel("clearance margin (deg)")
+    worst = sol.verification.get("cone_clearance", {}).get("value")
+    note = f"certified minimum {worst:.2e} rad" if worst is not None else "no cones" if not m.shape[1] else ""
+    axm.set_title(f"clearance margin  {note}", fontsize=10, loc="left")
+    axm.grid(True, alpha=0.3)
+    if m.shape[1]:
+        axm.legend(loc="best", fontsize=8)
+    fig.suptitle(f"tf = {sol.tf:.8g}   method = {sol.method or '?'}   exact = {sol.exact}", fontsize=12)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     if path is not None:
         fig.savefig(path, dpi=dpi, format="png")
     return fig

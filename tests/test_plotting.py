@@ -85,3 +85,29 @@ def test_importing_solvers_does_not_import_pyplot():
     code = "import sys, solvers; print('matplotlib.pyplot' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_sensor_path_plot_with_cones_and_its_margins(tmp_path, capsys):
+    """R4 BP2 by collocation: the margins drawn are the cone's clearance (0 at the start,
+    which lies on the boundary; never below the certified minimum), and ``slew solve --plot``
+    writes the sensor figure next to the main one."""
+    from reference_cases import melton
+    from solvers import solve
+    from solvers.clearance import margins
+    from solvers.plotting import cone_margins_along, plot_sensor_path
+    from training.cli import main
+
+    p = melton(23.0, -70.0)
+    sol = solve(p, method="collocation")
+    m = cone_margins_along(sol)
+    assert m.shape == (sol.t.shape[0], 1)
+    assert np.allclose(m[:, 0], margins(p, sol.q))
+    assert abs(m[0, 0]) < 1e-9 and m.min() >= -1e-6
+    fig = plot_sensor_path(sol, tmp_path / "s.png")
+    assert len(fig.axes) == 2 and (tmp_path / "s.png").read_bytes()[:4] == b"\x89PNG"
+    prob_file = tmp_path / "bp2.json"
+    prob_file.write_text(json.dumps(p.to_dict()))
+    code = main(["solve", str(prob_file), "--method", "collocation", "--plot", str(tmp_path / "f.png")])
+    assert code == 0
+    assert (tmp_path / "f-sensor.png").read_bytes()[:4] == b"\x89PNG"
+    assert "f-sensor.png" in capsys.readouterr().out

@@ -272,10 +272,15 @@ def _run_single(args, opts):
     else:
         print("solution      not written (use -o SOLUTION.json)", file=out)
     if args.plot:
-        from solvers.plotting import plot_solution
+        from solvers.plotting import plot_sensor_path, plot_solution
         try:
             plot_solution(sol, args.plot)
             print(f"figure        written to {args.plot}", file=out)
+            if sol.problem.cones or sol.problem.sensor_target is not None:
+                root, ext = os.path.splitext(args.plot)
+                sensor_png = f"{root}-sensor{ext or '.png'}"
+                plot_sensor_path(sol, sensor_png)
+                print(f"figure        written to {sensor_png} (sensor path, cones, clearance)", file=out)
         except ValueError as e:
             print(f"figure        not written: {e}", file=out)
         except OSError as e:
