@@ -11,8 +11,10 @@ Methods:
   multiple shooting.
 * ``"indirect"`` / ``"multiple-shooting"`` with keep-out cones — seeded by collocation
   (or the given guess's costates): cones inactive on the collocation answer give the exact
-  extremal of the problem without cones, with a certified clearance; a path that touches or
-  rides a cone goes to the penalty homotopy (``solvers.cone_penalty``): the verified
+  extremal of the problem without cones, with a certified clearance; a path that touches cones
+  at isolated instants gives the exact extremal with costate jumps there
+  (``solvers.cone_touch``, also tried by ``"auto"``); a path that rides a cone (or whose touch
+  refinement fails) goes to the penalty homotopy (``solvers.cone_penalty``): the verified
   extremal of a penalised, smoothed problem that clears every cone at every instant, an
   approximation of the constrained optimum (its tf gap to collocation's is reported).
 * ``"collocation"`` — direct collocation (Hermite–Simpson, IPOPT; ``solvers.collocation``):
@@ -319,7 +321,9 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
        optimum is not bang-bang), the collocation answer itself, verified by its own
        checks and labelled as such in ``route`` and ``message``;
     4. if collocation fails, the classical indirect multi-start.
-    Keep-out cones go to collocation (step 2 without refinement); pointing-only targets
+    Keep-out cones go to collocation; its answer is refined exactly when the cones are inactive
+    (the extremal without cones) or touched at isolated instants (touch-point junctions), and
+    is the answer otherwise (a path riding a cone boundary); pointing-only targets
     without cones are refined like full-attitude ones (with the roll transversality).
     """
     t0 = time.perf_counter()
@@ -341,6 +345,11 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
         if ref is not None:
             ref.wall_time = spent()
             return ref
+        touch = _refine_touching_cones(prob, col, options) if col.success else None
+        if touch is not None and touch.success:
+            touch.route = f"auto: collocation ({col.wall_time:.3g} s) → {touch.route}"
+            touch.wall_time = spent()
+            return touch
         col.route = f"auto: collocation ({col.route})"
         col.wall_time = spent()
         return col
@@ -386,6 +395,7 @@ def _refine_collocation(target, col, options, max_candidates, budget):
 
 # a cone whose clearance on the collocation answer exceeds this (rad) is taken as inactive
 INACTIVE_CONE_MARGIN = 1e-3
+TOUCH_BUDGET = 1.5   # s: the touch-point refinement's smoothing path after a failed direct attempt
 
 
 def _refine_inactive_cones(prob, col, options, budget_left):
@@ -421,6 +431,17 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     return ref
 
 
+def _refine_touching_cones(prob, col, options) -> SlewSolution:
+    """The exact extremal whose path touches cones at isolated instants (costate jumps there,
+    ``solvers.cone_touch``), from a collocation answer; ``success=False`` if there is none
+    near it (a boundary arc, or Newton fails), or if it is slower than collocation's."""
+    from .cone_touch import solve_touch
+    sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
+    sol.nit += col.nit
+    sol.nfev += col.nfev
+    return sol
+
+
 def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     """The indirect route for a problem with keep-out cones (see the module docstring)."""
     from .collocation import solve_collocation
@@ -445,6 +466,11 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
         ref.route = ref.route.replace("auto: ", "indirect with cones: ", 1)
         ref.wall_time = time.perf_counter() - t0
         return ref
+    touch = _refine_touching_cones(prob, col, options)
+    if touch.success:
+        touch.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {touch.route}"
+        touch.wall_time = time.perf_counter() - t0
+        return touch
     sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
                           time_budget=max(1.0, budget - (time.perf_counter() - t0)))
     sol.nit += col.nit

@@ -94,6 +94,22 @@ def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=10
     return replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf)[1][-1]
 
 
+def boundary_checks(bvp, yT, tols):
+    """``boundary_attitude_error``, ``boundary_rate_error`` and, for a pointing target,
+    ``roll_transversality`` at the final augmented state ``yT`` (nondimensional)."""
+    checks = {}
+    att = bvp.attitude_error(yT[0:4])
+    rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
+    checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
+                                                   att <= tols["boundary_attitude_error"])
+    checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
+                                               rate_nd <= tols["boundary_rate_error"])
+    if bvp.pointing:
+        tv = bvp.roll_transversality(yT)
+        checks["roll_transversality"] = make_check(tv, tols["roll_transversality"], tv <= tols["roll_transversality"])
+    return checks
+
+
 def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
     """Run the checks; returns ``(all_passed, checks, first_failure_text, dense_trajectory)``.
 
@@ -108,15 +124,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
         checks["propagation"] = make_check(1.0, 0.0, False)
         return False, checks, f"propagation failed: {tr.message}", tr
     yT = tr.y[-1]
-    att = bvp.attitude_error(yT[0:4])
-    rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
-    checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
-                                               att <= tols["boundary_attitude_error"])
-    checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
-                                           rate_nd <= tols["boundary_rate_error"])
-    if bvp.pointing:
-        tv = bvp.roll_transversality(yT)
-        checks["roll_transversality"] = make_check(tv, tols["roll_transversality"], tv <= tols["roll_transversality"])
+    checks.update(boundary_checks(bvp, yT, tols))
     H = af.hamiltonian_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
     H0 = H[0]
     drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))

@@ -1,0 +1,372 @@
+"""Exact bang-bang extremals whose path touches a keep-out cone at isolated instants.
+
+A cone keeps the sensor out: ``h(q) = qᵀMq - cos α ≤ 0`` (``M`` from
+``core.cone_penalty.cone_matrix``: ``qᵀMq = a · R(q) s``). When the optimal path touches the
+boundary at an instant ``t_c`` without riding it, the necessary conditions are those of an
+interior-point constraint:
+
+* the path is tangent to the boundary there: ``h(q(t_c)) = 0`` and ``ḣ(t_c) = 2 (Mq)·q̇ = 0``;
+* the attitude costate jumps along the constraint gradient,
+  ``λq(t_c⁺) = λq(t_c⁻) - ν ∂h/∂q = λq(t_c⁻) - 2 ν M q`` with a multiplier ``ν ≥ 0``
+  (the limit of the exterior penalty of ``solvers.cone_penalty``: ``ν = ∫ w h⁺ dt``);
+  ``λω`` and the state are continuous, and so is ``H`` (the jump changes it by ``-ν ḣ = 0``).
+
+With ``K`` touches, the unknowns are ``z = [μ, λω(0)]`` (normalised, as in ``AttitudeBVP``),
+``T``, the touch instants ``t_1 < … < t_K`` and the multipliers ``ν_k``; the residuals are the
+normalisation, the six boundary conditions, and ``h = ḣ = 0`` at each touch: ``7 + 2K``
+equations. Newton's method on them uses the event-driven bang-bang flow with its
+jump-corrected sensitivities on each segment between touches, chained through the jump maps.
+The guess (instants, multipliers, costates) comes from a collocation answer.
+
+The answer is an exact bang-bang extremal: between touches the control is
+``u_i = -umax_i sign(S_i)`` with switches located on the switching functions, so the path is
+reproduced by its switch times alone, and the clearance is certified on that replay.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from slew_env.core.quaternion import qmul
+from .attitude_bvp import AttitudeBVP, NY, quat_left_matrix
+from .clearance import cone_clearances
+from .core import attitude_flow as af
+from .core.cone_penalty import cone_matrix
+from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
+from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check, replay_path
+
+NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a contact
+ARC_MARGIN = 1e-4         # rad: a contact that stays this close over 5 % of tf is a boundary arc
+CLEARANCE_TOL = -1e-6     # rad
+SMOOTHING_PATH = (2e-2, 1e-2, 5e-3, 2e-3, 1e-3)
+
+
+class TouchBVP(AttitudeBVP):
+    """``AttitudeBVP`` (bang-bang) that accepts cones: they enter through the touch junctions."""
+    handles_cones = True
+
+
+def _right_matrix(p):
+    """``R(p)`` with ``x ⊗ p = R(p) x``."""
+    p0, p1, p2, p3 = p
+    return np.array([[p0, -p1, -p2, -p3],
+                     [p1, p0, p3, -p2],
+                     [p2, -p3, p0, p1],
+                     [p3, p2, -p1, p0]])
+
+
+def _touch_residual(y, M, cos_a):
+    """``[h, ḣ]`` at the augmented state ``y`` and their gradient (2 x 14)."""
+    q, w = y[0:4], y[4:7]
+    Mq = M @ q
+    qdot = 0.5 * qmul(q, np.array([0.0, *w]))
+    h = float(q @ Mq) - cos_a
+    hd = 2.0 * float(Mq @ qdot)
+    g = np.zeros((2, NY))
+    g[0, 0:4] = 2.0 * Mq
+    dqd_dq = 0.5 * _right_matrix(np.array([0.0, *w]))
+    dqd_dw = 0.5 * quat_left_matrix(q)[:, 1:4]
+    g[1, 0:4] = 2.0 * (M @ qdot) + 2.0 * dqd_dq.T @ Mq
+    g[1, 4:7] = 2.0 * dqd_dw.T @ Mq
+    return np.array([h, hd]), g
+
+
+class TouchProblem:
+    """The touch-point boundary-value problem of ``bvp`` with touches on ``cones[k]``."""
+
+    def __init__(self, bvp, cone_ids):
+        self.bvp = bvp
+        self.K = len(cone_ids)
+        s = bvp.sensor
+        self.M = [cone_matrix(bvp.problem.cones[c].axis, s) for c in cone_ids]
+        self.cos_a = [math.cos(bvp.problem.cones[c].half_angle) for c in cone_ids]
+        self.cone_ids = list(cone_ids)
+
+    def unpack(self, x):
+        K = self.K
+        return x[0:6], x[6], x[7:7 + K], x[7 + K:7 + 2 * K]
+
+    def segments(self, x, want_jac=True):
+        """Propagate through the touches: ``(R, Jac, pieces)`` or ``(None, None, message)``."""
+        bvp, K = self.bvp, self.K
+        z, T, tc, nu = self.unpack(x)
+        bounds = np.concatenate([[0.0], tc, [T]])
+        if not np.all(np.diff(bounds) > 0.0):
+            return None, None, "touch instants out of order"
+        n = x.shape[0]
+        y, dy = bvp.initial(z)
+        D = np.zeros((NY, n))          # dy/dx of the current segment's start
+        D[:, 0:6] = dy
+        signs = bvp.initial_signs(y)
+        R = [np.array([float(z @ z) - 1.0])]
+        Jr = [np.zeros((1, n))]
+        Jr[0][0, 0:6] = 2.0 * z
+        pieces = []
+        for k in range(K + 1):
+            dur = bounds[k + 1] - bounds[k]
+            Y, s_end, _, n_sw, steps, status, *_ = bvp._run(y, dur, np.eye(NY) if want_jac else None,
+                                                            signs0=signs)
+            if status != af.FLOW_OK or not np.all(np.isfinite(Y)):
+                return None, None, f"propagation failed on segment {k} (status {status})"
+            ye = Y[:NY].copy()
+            u, _ = af.control(ye, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, s_end)
+            fe = af.ext_rhs(ye, u, bvp.J)
+            pieces.append((y.copy(), dur, signs.copy()))
+            if want_jac:
+                Phi = Y[NY:].reshape(NY, NY)
+                De = Phi @ D
+                # the segment ends at bounds[k+1] and starts at bounds[k]
+                col_end = 7 + k if k < K else 6
+                De[:, col_end] += fe
+                if k > 0:
+                    De[:, 7 + k - 1] -= fe
+            if k < K:
+                r, g = _touch_residual(ye, self.M[k], self.cos_a[k])
+                R.append(r)
+                if want_jac:
+                    Jr.append(g @ De)
+                # jump λq⁺ = λq⁻ - 2 ν M q
+                Mq = self.M[k] @ ye[0:4]
+                y = ye.copy()
+                y[7:11] -= 2.0 * nu[k] * Mq
+                if want_jac:
+                    Jmap = np.eye(NY)
+                    Jmap[7:11, 0:4] -= 2.0 * nu[k] * self.M[k]
+                    D = Jmap @ De
+                    D[7:11, 7 + K + k] -= 2.0 * Mq
+                signs = s_end.copy()
+            else:
+                r, dry, drT = bvp.terminal(ye, T)
+                R.append(r)
+                if want_jac:
+                    Jr.append(dry @ De)
+        Rv = np.concatenate(R)
+        if not np.all(np.isfinite(Rv)):
+            return None, None, "non-finite residual"
+        return Rv, (np.vstack(Jr) if want_jac else None), pieces
+
+
+def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3):
+    """Damped Newton on the touch-point problem: ``(x, converged, nit, nfev, residual)``."""
+    x = np.asarray(x0, float).copy()
+    R, Jm, msg = tp.segments(x)
+    nfev = 1
+    if R is None:
+        return x, False, 0, nfev, math.inf
+    scale = np.maximum(np.abs(x), 1.0)
+    for it in range(max_iter):
+        rn = float(np.max(np.abs(R)))
+        if rn < tol:
+            return x, True, it, nfev, rn
+        # minimum-norm least squares: a bang-bang Jacobian is rank-deficient when the iterate
+        # has fewer switches than conditions (see shooting.newton_shoot)
+        dx = np.linalg.lstsq(Jm, -R, rcond=1e-10)[0]
+        big = float(np.max(np.abs(dx) / scale))
+        if big > max_step:
+            dx *= max_step / big
+        phi = float(R @ R)
+        alpha = 1.0
+        xt = None
+        while alpha > 1e-3:
+            xt = x + alpha * dx
+            Rt, _, _ = tp.segments(xt, want_jac=False)
+            nfev += 1
+            if Rt is not None and float(Rt @ Rt) < (1.0 - 1e-4 * alpha) * phi:
+                break
+            alpha *= 0.5
+            xt = None
+        if xt is None:
+            # the bang-bang residual is only piecewise smooth (a switch may appear or vanish
+            # near the guess): Levenberg–Marquardt steps, shorter and turned towards the gradient
+            JtJ, g = Jm.T @ Jm, Jm.T @ R
+            lam0 = float(np.trace(JtJ)) / JtJ.shape[0]
+            for lam in lam0 * np.array([1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]):
+                step = np.linalg.solve(JtJ + lam * np.diag(np.maximum(np.diag(JtJ), 1e-12)), -g)
+                cand = x + step
+                Rt, _, _ = tp.segments(cand, want_jac=False)
+                nfev += 1
+                if Rt is not None and float(Rt @ Rt) < phi:
+                    xt = cand
+                    break
+            if xt is None:
+                return x, False, it, nfev, rn
+        x = xt
+        R, Jm, msg = tp.segments(x)
+        nfev += 1
+        if R is None:
+            return x, False, it + 1, nfev, math.inf
+    rn = float(np.max(np.abs(R)))
+    return x, rn < tol, max_iter, nfev, rn
+
+
+def find_touches(problem, sol):
+    """``[(cone index, time index)]`` of the isolated contacts of a dense answer (local minima of
+    the margin below ``NEAR_MARGIN``), or ``None`` when a contact lasts (a boundary arc: the
+    path stays within ``ARC_MARGIN`` over more than 5 % of the slew)."""
+    from .clearance import sensor_directions
+    d = sensor_directions(np.asarray(sol.q, float), problem.sensor_axis)
+    t = np.asarray(sol.t, float)
+    out = []
+    for c, cone in enumerate(problem.cones):
+        m = np.arctan2(np.linalg.norm(np.cross(d, cone.axis), axis=1), d @ cone.axis) - cone.half_angle
+        near = m < NEAR_MARGIN
+        # ignore contacts at the very ends (a start or target on the boundary needs no junction)
+        near[:2] = False
+        near[-2:] = False
+        if not near.any():
+            continue
+        idx = np.flatnonzero(near)
+        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            riding = run[m[run] < ARC_MARGIN]
+            if riding.size and t[riding[-1]] - t[riding[0]] > 0.05 * t[-1]:
+                return None
+            out.append((c, int(run[np.argmin(m[run])])))
+    out.sort(key=lambda p: t[p[1]])
+    return out
+
+
+def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
+    """The exact extremal with touch-point junctions near ``seed`` (collocation), or a
+    ``SlewSolution`` with ``success=False`` saying why not."""
+    t_start = time.perf_counter()
+    tols = dict(DEFAULT_TOLS, **(tols or {}))
+    fail = lambda why: SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0,   # noqa: E731
+                                    time.perf_counter() - t_start, method="indirect", problem=problem,
+                                    route=f"touch-point junctions: {why}")
+    if not math.isinf(problem.torque_norm):
+        return fail("per-axis bound only")
+    touches = find_touches(problem, seed)
+    if touches is None:
+        return fail("a contact lasts (boundary arc)")
+    if not touches:
+        return fail("no touch found")
+    bvp = TouchBVP(problem)
+    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    tp = TouchProblem(bvp, [c for c, _ in touches])
+    tau = bvp.tau
+    # guess: costates at t = 0, the contact instants, and the multipliers from the costate
+    # jumps of the seed across each contact (projected on the constraint gradient)
+    lq = np.asarray(seed.costate0[0:4], float) / tau
+    lw = np.asarray(seed.costate0[4:7], float) / tau ** 2
+    mu = qmul(bvp.q0 * np.array([1.0, -1.0, -1.0, -1.0]), lq)[1:4]
+    z = np.concatenate([mu, lw])
+    nz = float(np.linalg.norm(z))
+    ts = np.asarray(seed.t, float) / tau
+    tc, nu = [], []
+    C = np.asarray(seed.costate, float)
+    for k, (c, i) in enumerate(touches):
+        tc.append(ts[i])
+        lo, hi = max(0, i - 3), min(len(ts) - 1, i + 3)
+        qi = np.asarray(seed.q[i], float) / np.linalg.norm(seed.q[i])
+        # both projected on the tangent space of the unit sphere: the collocation costate's
+        # component along q is a free gauge, and it changes across the contact too
+        jump = (C[hi, 0:4] - C[lo, 0:4]) / tau
+        jump = jump - (jump @ qi) * qi
+        g = 2.0 * tp.M[k] @ qi
+        g = g - (g @ qi) * qi
+        nu.append(max(0.0, -float(jump @ g) / max(float(g @ g), 1e-12)) / nz)
+    x0 = np.concatenate([z / nz, [float(seed.tf) / tau], tc, nu])
+    x, ok, nit, nfev, rn = newton(tp, x0)
+    if not ok:
+        # the smoothed control law (tanh(S/ε), a homotopy only) makes the residual smooth
+        # where a switch appears or vanishes near the guess; follow ε down, then solve the
+        # exact bang-bang problem from there
+        xs = x0
+        for eps in SMOOTHING_PATH:
+            if time.perf_counter() - t_start > time_budget:
+                break
+            bvp.set_mode("tanh", eps=eps)
+            xs, ok_s, n1, n2, rs = newton(tp, xs, tol=1e-9)
+            nit, nfev = nit + n1, nfev + n2
+            if not ok_s:
+                break
+        bvp.set_mode("bang")
+        if ok_s:
+            x, ok, n1, n2, rn = newton(tp, xs)
+            nit, nfev = nit + n1, nfev + n2
+    if not ok:
+        return fail(f"Newton did not converge (residual {rn:.2g}, {nit} iterations)")
+    sol = _verify(tp, x, problem, seed, tols)
+    sol.nit, sol.nfev = nit, nfev
+    sol.wall_time = time.perf_counter() - t_start
+    return sol
+
+
+def _verify(tp, x, problem, seed, tols):
+    bvp, K = tp.bvp, tp.K
+    tau = bvp.tau
+    z, T, tc, nu = tp.unpack(x)
+    R, _, pieces = tp.segments(x, want_jac=False)
+    ts_all, ys_all, sg_all, sw_t, sw_a = [], [], [], [], []
+    t0 = 0.0
+    for (y0, dur, signs) in pieces:
+        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, _ = bvp._run(
+            y0, dur, None, signs0=signs, record=4000, hmax=T / 1000)
+        ts_all.append(rt[:n_rec] + t0)
+        ys_all.append(rY[:n_rec])
+        sg_all.append(rs[:n_rec])
+        sw_t.extend((swt[:n_sw] + t0).tolist())
+        sw_a.extend(swa[:n_sw].tolist())
+        t0 += dur
+    t = np.concatenate(ts_all)
+    Y = np.vstack(ys_all)
+    S = np.vstack(sg_all)
+    checks = {}
+    checks.update(boundary_checks(bvp, Y[-1], tols))
+    H = af.hamiltonian_batch(Y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, S)
+    drift = float(np.max(np.abs(H - H[0])) / max(abs(H[0]), 1e-300))
+    checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
+    checks["normality"] = make_check(H[0], 0.0, H[0] < 0.0)
+    Sw = Y[:, 11:14] / bvp.J
+    amax = np.max(np.abs(Sw), axis=0)
+    amax[amax == 0] = 1.0
+    worst = float(np.max(S * Sw / amax))
+    checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
+    # touch multipliers: ν ≥ 0 (the cone pushes the path out, never pulls it in)
+    checks["touch_multipliers"] = dict(make_check(float(np.min(nu)), 0.0, bool(np.min(nu) >= 0.0)),
+                                       times=(tc * tau).tolist(), cones=tp.cone_ids)
+    order = np.argsort(sw_t, kind="stable")
+    sw_t = np.asarray(sw_t)[order]
+    sw_a = np.asarray(sw_a, dtype=np.int64)[order]
+    switch_times = [sw_t[sw_a == i] * tau for i in range(3)]
+    u_first = S[0].copy()
+    # independent replay of the switch times alone (the environment's RK4), with the
+    # clearance certified on it at every instant
+    tr, xr = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, switch_times, u_first,
+                         T * tau, steps_per_tf=20000)
+    rep = max(bvp.attitude_error(xr[-1, 0:4]), float(np.linalg.norm(xr[-1, 4:7] * tau - bvp.wf)))
+    checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
+    per = cone_clearances(problem, tr, xr[:, 0:4], xr[:, 4:7])
+    cert = min(p[1] for p in per)
+    checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
+    if problem.rate_max is not None:
+        wmax = float(np.max(np.max(np.abs(Y[:, 4:7]), axis=0) / tau / problem.rate_max))
+        checks["rate_limit"] = make_check(wmax, tols["rate_limit"], wmax <= tols["rate_limit"])
+    col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
+    slower = (T * tau - seed.tf) / seed.tf
+    checks["not_slower_than_collocation"] = make_check(slower, 2.0 * col_rel, slower <= 2.0 * col_rel)
+    text = failure_text(checks)
+    c = -1.0 / H[0] if H[0] < 0 else 1.0
+    y0, _ = bvp.initial(z)
+    umax0 = float(problem.torque_max.max())
+    u = af.control_batch(Y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, S) * umax0
+    torque = problem.torque_max.copy()
+
+    def control(tq):
+        tq = np.asarray(tq, dtype=float)
+        flips = np.stack([np.searchsorted(switch_times[i], tq, side="right") for i in range(3)], axis=-1)
+        return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    tf = T * tau
+    err = max(checks["boundary_attitude_error"]["value"], checks["replay"]["value"])
+    msg = (f"Verified extremal found (touching the cones at {K} instant(s), costate jumps there: "
+           f"verification['touch_multipliers']).") if not text else f"Touch-point extremal found but {text}."
+    return SlewSolution(
+        not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0, 0.0,
+        tf=tf, tf_tol=tf * max(1e-10, 10.0 * err),
+        costate0=np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]]), switch_times=switch_times,
+        u_first=u_first, t=t * tau, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
+        costate=np.hstack([c * tau * Y[:, 7:11], c * tau ** 2 * Y[:, 11:14]]), method="indirect",
+        route=f"touch-point junctions ({K}) from collocation costates", guess="collocation", n_candidates=1,
+        candidates_tf=[tf], verification=checks, problem=problem, _control=control)

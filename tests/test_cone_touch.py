@@ -1,0 +1,100 @@
+"""Exact extremals that touch a keep-out cone at an isolated instant (solvers.cone_touch):
+the junction's Jacobian, and a touch problem solved exactly and replayed from its switch times."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+from slew_env.core.quaternion import qrotate
+from solvers import solve
+from solvers.clearance import certified_min_margin, margins
+from solvers.cone_touch import TouchBVP, TouchProblem, find_touches
+from solvers.core.cone_penalty import cone_matrix
+from solvers.verify import replay_path
+
+# pointing-cones family, seed [0, 3]: three cones, the optimal path touches the first once
+TOUCH = SlewProblem.from_dict(json.loads("""{"inertia": [0.9369836444739033, 0.9162486620649626, 0.592824893402508],
+ "q0": [-0.212179620021578, 0.7874395993965867, -0.2511260017789171, -0.5213966027700767],
+ "sensor_target": [0.27136277312428053, -0.1059744793465666, 0.9566251382278873],
+ "cones": [{"axis": [0.7353572616426709, -0.4117251266523518, -0.5382677009003024], "half_angle": 0.3879313425796854},
+           {"axis": [0.8629894045386329, -0.4510996520342433, -0.22750470673953233], "half_angle": 0.2827254380309789},
+           {"axis": [-0.26472544369114387, -0.021596704770949784, 0.9640819580334254], "half_angle": 0.41200134858165927}]}"""))
+
+
+def test_touch_problem_jacobian_matches_finite_differences():
+    bvp = TouchBVP(TOUCH)
+    bvp.sensor = np.array([1.0, 0.0, 0.0])
+    tp = TouchProblem(bvp, [0])
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(size=6), [2.0, 0.9, 0.4]])
+    x[:6] /= np.linalg.norm(x[:6])
+    R, Jm, _ = tp.segments(x)
+    for j in range(x.shape[0]):
+        e = np.zeros_like(x)
+        e[j] = 1e-7
+        fd = (tp.segments(x + e, False)[0] - tp.segments(x - e, False)[0]) / 2e-7
+        assert np.allclose(Jm[:, j], fd, atol=1e-6), j
+
+
+@pytest.fixture(scope="module")
+def touch_solutions():
+    col = solve(TOUCH, method="collocation")
+    return col, solve(TOUCH, method="indirect"), solve(TOUCH)
+
+
+def test_collocation_answer_touches_once(touch_solutions):
+    col, _, _ = touch_solutions
+    assert find_touches(TOUCH, col) == [(0, 40)]
+
+
+def test_touch_extremal_is_exact_and_not_slower_than_collocation(touch_solutions):
+    col, sol, _ = touch_solutions
+    assert sol.success and sol.exact and "touch-point junctions (1)" in sol.route, sol.message
+    assert sol.tf <= col.tf * (1 + 1e-9)
+    assert sol.tf == pytest.approx(col.tf, rel=1e-3)
+    v = sol.verification
+    for k in ("boundary_attitude_error", "roll_transversality", "switching_law", "replay"):
+        assert v[k]["passed"] and v[k]["value"] <= 1e-8, k
+    assert v["hamiltonian_drift"]["value"] <= 1e-9   # H is continuous across the costate jump
+    assert v["touch_multipliers"]["value"] > 0.0
+
+
+def test_touch_extremal_replays_from_its_switch_times(touch_solutions):
+    """Independent of the costates: the switch times alone (fixed-step RK4) reach the target,
+    touch the cone (margin ~0 at one instant) and never enter it."""
+    _, sol, _ = touch_solutions
+    t, x = replay_path(TOUCH.inertia, TOUCH.torque_max, TOUCH.q0, TOUCH.omega0, sol.switch_times, sol.u_first,
+                       sol.tf, steps_per_tf=20000)
+    s_end = qrotate(x[-1, 0:4], TOUCH.sensor_axis)
+    assert math.acos(min(1.0, float(s_end @ TOUCH.sensor_target))) < 1e-8
+    assert np.linalg.norm(x[-1, 4:7]) < 1e-8
+    sample, certified = certified_min_margin(TOUCH, t, x[:, 0:4], x[:, 4:7])
+    assert certified >= -1e-6
+    assert 0.0 <= sample + 1e-9 and sample < 1e-6          # it does touch
+    interior = margins(TOUCH, x[:, 0:4])
+    k = int(np.argmin(interior))
+    assert 0.2 * len(t) < k < 0.8 * len(t)                  # at an interior instant
+
+
+def test_costate_jumps_along_the_constraint_gradient(touch_solutions):
+    _, sol, _ = touch_solutions
+    tc = sol.verification["touch_multipliers"]["times"][0]
+    k = int(np.searchsorted(sol.t, tc))
+    # the dense record holds both sides of the touch instant
+    before = [i for i in range(len(sol.t)) if abs(sol.t[i] - tc) < 1e-12]
+    assert len(before) >= 2
+    i0, i1 = before[0], before[-1]
+    jump = sol.costate[i1, 0:4] - sol.costate[i0, 0:4]
+    g = 2.0 * cone_matrix(TOUCH.cones[0].axis, TOUCH.sensor_axis) @ sol.q[i0]
+    cosine = float(jump @ g) / (np.linalg.norm(jump) * np.linalg.norm(g))
+    assert cosine == pytest.approx(-1.0, abs=1e-9)          # λq⁺ - λq⁻ = -ν ∂h/∂q, ν > 0
+    assert np.allclose(sol.costate[i1, 4:7], sol.costate[i0, 4:7])   # λω is continuous
+    assert k > 0
+
+
+def test_auto_returns_the_touch_extremal(touch_solutions):
+    _, sol, auto = touch_solutions
+    assert auto.success and auto.exact and "touch-point" in auto.route
+    assert auto.tf == pytest.approx(sol.tf, rel=1e-10)
