@@ -473,8 +473,16 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
         return touch
     sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
                           time_budget=max(1.0, budget - (time.perf_counter() - t0)))
-    sol.nit += col.nit
-    sol.nfev += col.nfev
+    sol.nit += col.nit + touch.nit
+    sol.nfev += col.nfev + touch.nfev
+    if sol.success:
+        # the penalised extremal's costates carry the touch jumps smoothed out, a better seed
+        # for the exact touch refinement than collocation's
+        exact = _refine_touching_cones(prob, sol, options)
+        if exact.success:
+            exact.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {sol.route} → {exact.route}"
+            exact.wall_time = time.perf_counter() - t0
+            return exact
     sol.route = f"indirect with cones: collocation ({col.wall_time:.3g} s, tf {col.tf:.6g}) → {sol.route}"
     sol.wall_time = time.perf_counter() - t0
     return sol

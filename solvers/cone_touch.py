@@ -227,9 +227,14 @@ def find_touches(problem, sol):
     return out
 
 
+def _seed_name(seed):
+    return "collocation" if seed.method == "collocation" else "penalised"
+
+
 def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
-    """The exact extremal with touch-point junctions near ``seed`` (collocation), or a
-    ``SlewSolution`` with ``success=False`` saying why not."""
+    """The exact extremal with touch-point junctions near ``seed`` (a collocation answer, or
+    the penalised extremal of ``solvers.cone_penalty``), or a ``SlewSolution`` with
+    ``success=False`` saying why not. Accepted only if not slower than the seed."""
     t_start = time.perf_counter()
     tols = dict(DEFAULT_TOLS, **(tols or {}))
     fail = lambda why: SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0,   # noqa: E731
@@ -346,7 +351,7 @@ def _verify(tp, x, problem, seed, tols):
         checks["rate_limit"] = make_check(wmax, tols["rate_limit"], wmax <= tols["rate_limit"])
     col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
     slower = (T * tau - seed.tf) / seed.tf
-    checks["not_slower_than_collocation"] = make_check(slower, 2.0 * col_rel, slower <= 2.0 * col_rel)
+    checks["not_slower_than_seed"] = make_check(slower, 2.0 * col_rel, slower <= 2.0 * col_rel)
     text = failure_text(checks)
     c = -1.0 / H[0] if H[0] < 0 else 1.0
     y0, _ = bvp.initial(z)
@@ -368,5 +373,5 @@ def _verify(tp, x, problem, seed, tols):
         costate0=np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]]), switch_times=switch_times,
         u_first=u_first, t=t * tau, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
         costate=np.hstack([c * tau * Y[:, 7:11], c * tau ** 2 * Y[:, 11:14]]), method="indirect",
-        route=f"touch-point junctions ({K}) from collocation costates", guess="collocation", n_candidates=1,
+        route=f"touch-point junctions ({K}) from {_seed_name(seed)} costates", guess=_seed_name(seed), n_candidates=1,
         candidates_tf=[tf], verification=checks, problem=problem, _control=control)
