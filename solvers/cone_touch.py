@@ -329,9 +329,17 @@ def _verify(tp, x, problem, seed, tols):
     amax[amax == 0] = 1.0
     worst = float(np.max(S * Sw / amax))
     checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
-    # touch multipliers: ν ≥ 0 (the cone pushes the path out, never pulls it in)
+    # touch multipliers: ν ≥ 0 (the cone pushes the path out, never pulls it in). Reported in
+    # the solution's costate scale (H ≡ -1, problem units), with the jump of λq at each touch,
+    # so that the costates can be replayed: λq(t⁺) = λq(t⁻) + jump
+    c_scale = -1.0 / H[0] if H[0] < 0 else 1.0
+    jumps = []
+    for k in range(K):
+        qk = pieces[k + 1][0][0:4]
+        jumps.append((-2.0 * nu[k] * c_scale * tau * (tp.M[k] @ qk)).tolist())
     checks["touch_multipliers"] = dict(make_check(float(np.min(nu)), 0.0, bool(np.min(nu) >= 0.0)),
-                                       times=(tc * tau).tolist(), cones=tp.cone_ids)
+                                       times=(tc * tau).tolist(), cones=tp.cone_ids,
+                                       multipliers=(nu * c_scale * tau).tolist(), costate_jumps=jumps)
     order = np.argsort(sw_t, kind="stable")
     sw_t = np.asarray(sw_t)[order]
     sw_a = np.asarray(sw_a, dtype=np.int64)[order]

@@ -91,6 +91,9 @@ def test_costate_jumps_along_the_constraint_gradient(touch_solutions):
     cosine = float(jump @ g) / (np.linalg.norm(jump) * np.linalg.norm(g))
     assert cosine == pytest.approx(-1.0, abs=1e-9)          # λq⁺ - λq⁻ = -ν ∂h/∂q, ν > 0
     assert np.allclose(sol.costate[i1, 4:7], sol.costate[i0, 4:7])   # λω is continuous
+    # the reported jump is the one in the dense costates (what a costate replay needs)
+    reported = np.asarray(sol.verification["touch_multipliers"]["costate_jumps"][0])
+    assert np.allclose(reported, jump, atol=1e-9 * np.linalg.norm(jump))
     assert k > 0
 
 
