@@ -159,7 +159,6 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
     ``MAX_BACKOFF_ROUNDS``), then verifies. ``success`` needs every check, including the
     final time no more than ``MAX_GAP`` above the seed's (``regularisation``).
     """
-    import time
     t_start = time.perf_counter()
     M = int(segments)
     if M < 2:
