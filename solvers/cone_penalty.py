@@ -31,6 +31,7 @@ collocation answer's (``SlewSolution.verification['regularisation']``).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
