@@ -11,6 +11,11 @@ environment's control is piecewise constant over ``control_dt``, so the flown tr
 an approximation of the optimal one; the observations along it, paired with the actions,
 are the behaviour-cloning data.
 
+With ``bc.expert: dense`` (the ``pointing-cones`` entry of ``configs/ppo.yaml``) the expert is
+instead ``training.rl.dense_expert``: dense collocation answers of the problems with every cone
+inflated by ``bc.margin_deg``, each dense state labelled with the control averaged over the
+step that starts there, plus the records of DAgger rounds listed in ``bc.extra_data``.
+
 Pre-training (``slew train-rl --bc-pretrain N``, ``pretrain``):
 
 * the ``VecNormalize`` observation statistics are set from the expert observations (and,
@@ -56,7 +61,9 @@ from . import ALGOS, DEFAULT_BC_SEED, DEFAULT_EVAL_SEED, FAMILIES
 ACTION_MODES = ("average", "start")
 BC_DEFAULTS = {"epochs": 50, "batch_size": 256, "learning_rate": 1e-3, "action": "average",
                "value_pretrain": True, "prefill_replay": True, "n_sub": 32, "log_std": None, "rl_learning_rate": None, "actor_warmup": 0,
-               "ent_coef_init": None}
+               "ent_coef_init": None, "expert": "switch-times", "margin_deg": 2.5,
+               "extra_data": []}
+EXPERT_KINDS = ("switch-times", "dense")
 
 
 # --------------------------------------------------------------------------- expert solutions
@@ -224,6 +231,71 @@ def build_dataset(records: list, env_kwargs: Optional[dict] = None, mode: str = 
                                                                                   for e in eps])))}
 
 
+def dense_returns(records: list, env_kwargs: Optional[dict], gamma: float) -> np.ndarray:
+    """Approximate discounted returns of the dense expert's states (for value pre-training).
+
+    A state at time ``t`` of an answer with final time ``tf`` is ``K = ceil((tf − t) / Δt)`` control
+    steps from success: return ``−Δt·(1 − γ^K)/(1 − γ) + γ^(K−1)·(bonus − Φ(s))`` with ``Φ(s) = −(error
+    angle + rate error)`` (the shaping terms telescope to ``−Φ(s)`` at the terminal step; undiscounted there).
+    """
+    from slew_env import SlewProblem
+    from slew_env.core import env_kernels as _k
+
+    kw = dict(env_kwargs or {})
+    dt = float(kw.get("control_dt", 0.05))
+    bonus = float(kw.get("success_bonus", 10.0))
+    shaping = float(kw.get("shaping", 1.0))
+    out = []
+    for rec in records:
+        if not rec.get("success"):
+            continue
+        prob = SlewProblem.from_dict(rec["problem"])
+        task = prob.to_task_array(int(kw.get("max_cones", 4)))
+        T = prob.time_unit
+        obs = np.zeros(_k.obs_length(int(kw.get("max_cones", 4))), np.float32)
+        ts = list(rec["t"]) + [rec["tf"]] * 3
+        X = np.concatenate([np.asarray(rec["q"], float), np.asarray(rec["omega"], float)], axis=1)
+        X = np.concatenate([X, np.repeat(np.concatenate([X[-1:, :4], np.zeros((1, 3))], axis=1), 3, axis=0)])
+        for t, x in zip(ts, X):
+            x = x.copy()
+            x[:4] /= np.linalg.norm(x[:4])
+            att, rate = _k.write_obs(task, x, obs)
+            K = max(int(math.ceil((float(rec["tf"]) - t) / (dt * T) - 1e-9)), 1)
+            out.append(-dt * (1.0 - gamma ** K) / (1.0 - gamma) + gamma ** (K - 1) * (bonus + shaping * (att + rate)))
+    return np.asarray(out, np.float64)
+
+
+def dense_expert_dataset(family: str, n_episodes: int, seed: Optional[int] = None, env_kwargs=None, gamma=0.99,
+                         expert_data=None, margin_deg: float = 2.5, progress=True, extra_data=()) -> dict:
+    """Cloning pairs from dense collocation answers with inflated cones (``training.rl.dense_expert``).
+
+    ``extra_data``: more dense record files (DAgger rounds, ``python -m training.rl.dense_expert
+    dagger``); their solved records are added to those of the ``n_episodes`` expert problems.
+    """
+    from .dense_expert import build_pairs, default_dense_path, load_records, solve_range
+
+    seed = DEFAULT_BC_SEED if seed is None else int(seed)
+    path = expert_data or default_dense_path(family, seed)
+    records = solve_range(family, seed, n_episodes, path, margin_deg, progress)
+    n_extra = 0
+    for extra in extra_data or ():
+        if not Path(extra).exists():
+            raise FileNotFoundError(f"bc.extra_data: no file {extra}")
+        more = load_records(extra)
+        n_extra += len(more)
+        records = records + more
+    ok = [r for r in records if r.get("success")]
+    if not ok:
+        raise ValueError(f"behaviour cloning: none of the {len(records)} dense expert problems of {family!r} solved")
+    kw = dict(env_kwargs or {})
+    data = build_pairs(ok, int(kw.get("max_cones", 4)), float(kw.get("control_dt", 0.05)))
+    data["returns"] = dense_returns(ok, kw, gamma)
+    data.update(n_records=len(records), n_solved=len(ok), n_episodes=len(ok), seed=seed, n_extra_records=n_extra,
+                replay_success_rate=math.nan, expert="dense", margin_deg=float(margin_deg),
+                expert_min_margin_deg=float(min(r["min_margin_deg"] for r in ok)))
+    return data
+
+
 def expert_dataset(family: str, n_episodes: int, seed: Optional[int] = None, env_kwargs=None, mode="average",
                    gamma=0.99, expert_data=None, workers: int = 1, solve_options=None, progress=True) -> dict:
     """Solve (or load) ``n_episodes`` expert problems and build the cloning dataset (``build_dataset``)."""
@@ -381,8 +453,17 @@ def pretrain(model, family: str, n_episodes: int, env_kwargs=None, bc_cfg=None, 
     if unknown:
         raise ValueError(f"bc: unknown key(s) {sorted(unknown)}; known: {sorted(BC_DEFAULTS)}")
     gamma = float(getattr(model, "gamma", 0.99))
-    data = expert_dataset(family, n_episodes, seed, env_kwargs, cfg["action"], gamma, expert_data, workers,
-                          solve_options, progress=True)
+    if cfg["expert"] not in EXPERT_KINDS:
+        raise ValueError(f"bc.expert: expected one of {EXPERT_KINDS}, got {cfg['expert']!r}")
+    if cfg["expert"] == "dense":
+        if isinstance(model, SAC) and cfg["prefill_replay"]:
+            raise ValueError("bc.expert: dense has no expert transitions for SAC's replay buffer; "
+                             "set bc.prefill_replay=false")
+        data = dense_expert_dataset(family, n_episodes, seed, env_kwargs, gamma, expert_data, cfg["margin_deg"],
+                                    extra_data=cfg["extra_data"])
+    else:
+        data = expert_dataset(family, n_episodes, seed, env_kwargs, cfg["action"], gamma, expert_data, workers,
+                              solve_options, progress=True)
     t_data = time.perf_counter() - t0
     vn = model.get_vec_normalize_env()
     obs = data["obs"]
@@ -395,7 +476,10 @@ def pretrain(model, family: str, n_episodes: int, env_kwargs=None, bc_cfg=None, 
             "replay_success_rate": data["replay_success_rate"], "action": cfg["action"], "epochs": cfg["epochs"],
             "train_mse_first": hist["train_mse"][0], "train_mse_last": hist["train_mse"][-1],
             "val_mse_first": hist["val_mse"][0], "val_mse_last": hist["val_mse"][-1],
-            "dataset_time_s": t_data}
+            "dataset_time_s": t_data, "expert": cfg["expert"]}
+    if cfg["expert"] == "dense":
+        info.update(margin_deg=data["margin_deg"], expert_min_margin_deg=data["expert_min_margin_deg"],
+                    extra_data=[str(x) for x in cfg["extra_data"]], n_extra_records=data["n_extra_records"])
     if cfg["log_std"] is not None and not isinstance(model, SAC):
         import torch
         with torch.no_grad():   # PPO: exploration noise of the RL phase that follows the cloning
