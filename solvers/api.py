@@ -350,6 +350,11 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
             touch.route = f"auto: collocation ({col.wall_time:.3g} s) → {touch.route}"
             touch.wall_time = spent()
             return touch
+        if not col.success:
+            free = _clear_without_cones(prob, col, options, col_opts, budget - spent())
+            if free is not None:
+                free.wall_time = spent()
+                return free
         col.route = f"auto: collocation ({col.route})"
         col.wall_time = spent()
         return col
@@ -431,6 +436,35 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     return ref
 
 
+def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False):
+    """When collocation fails on a cone problem: the answer of the problem without its cones,
+    if its path clears every cone at every instant (certified), else ``None``. A cone far from
+    the path can still upset the NLP; the unconstrained optimum that is feasible is the
+    constrained optimum."""
+    from .clearance import certified_min_margin
+    from .verify import replay_path
+    free_prob = prob.replace(cones=[])
+    opts = dict(options, time_budget=max(1.0, budget_left))
+    free = (_solve_indirect(free_prob, "indirect", None, **opts) if exact_only
+            else _solve_auto(free_prob, None, col_opts, opts))
+    if not free.success or (exact_only and not free.exact):
+        return None
+    if free.exact and math.isinf(prob.torque_norm):
+        t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, free.switch_times, free.u_first,
+                           free.tf, steps_per_tf=8000)
+        q, w = x[:, 0:4], x[:, 4:7]
+    else:
+        t, q, w = free.t, free.q, free.omega
+    _, certified = certified_min_margin(prob, t, q, w)
+    free.verification["cone_clearance"] = make_check(certified, -1e-6, certified >= -1e-6)
+    if certified < -1e-6:
+        return None
+    free.problem = prob
+    free.route = (f"auto: collocation with the cones failed ({col.message[:120]}) → the problem without cones, "
+                  f"whose path clears them (certified {certified:.3g} rad): {free.route}")
+    return free
+
+
 def _refine_touching_cones(prob, col, options) -> SlewSolution:
     """The exact extremal whose path touches cones at isolated instants (costate jumps there,
     ``solvers.cone_touch``), from a collocation answer; ``success=False`` if there is none
@@ -456,6 +490,12 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
         raise ValueError(f"segments: the cone penalty route uses multiple shooting, needs ≥ 2, got {segments}")
     col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget)}, **col_opts))
     if not col.success:
+        free = _clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
+                                    exact_only=True)
+        if free is not None:
+            free.route = free.route.replace("auto: ", "indirect with cones: ", 1)
+            free.wall_time = time.perf_counter() - t0
+            return free
         col.success = False
         col.method = "indirect"
         col.route = f"indirect with cones: collocation seed failed ({col.message[:200]})"
