@@ -24,6 +24,13 @@ STATUS_MESSAGES = {
 }
 
 
+def is_exact(success, method, verification) -> bool:
+    """The rule of ``SlewSolution.exact``, for a solution or its JSON record: verified, from an
+    indirect route, and not the penalised extremal of the cone route."""
+    return bool(success is True and method in ("indirect", "multiple-shooting")
+                and "regularisation" not in (verification or {}))
+
+
 @dataclass
 class SlewSolution:
     """Result of ``solvers.solve``.
@@ -81,8 +88,7 @@ class SlewSolution:
         """A verified exact extremal of the problem as posed: an indirect answer that is not
         the penalised extremal of the cone route (``verification['regularisation']``).
         Collocation and penalised answers are approximations of the optimum."""
-        return bool(self.success and self.method in ("indirect", "multiple-shooting")
-                    and "regularisation" not in self.verification)
+        return is_exact(bool(self.success), self.method, self.verification)
 
     @property
     def n_switches(self) -> int:

@@ -224,8 +224,8 @@ def solve_task(spec: GenerationSpec, index: int, solve_fn: Optional[Callable] = 
         else:
             rec["success"] = False
         # an exact extremal comes from the indirect routes; collocation answers are approximate
-        rec["exact"] = bool(rec["success"] is True and rec.get("method") in ("indirect", "multiple-shooting")
-                            and "regularisation" not in (rec.get("verification") or {}))
+        from solvers.solution import is_exact
+        rec["exact"] = is_exact(rec["success"], rec.get("method"), rec.get("verification"))
     except ValueError as e:
         rec.update(success=False, status=STATUS_REJECTED, message=f"{stage}: {e}")
     except Exception as e:   # a bug in a route must cost one record, not the run
