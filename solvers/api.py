@@ -49,9 +49,8 @@ import numpy as np
 
 from slew_env import SlewProblem
 from .attitude_bvp import AttitudeBVP
-from .core import attitude_flow as af
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
-from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solve_structure
+from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solution_fields, solve_structure
 from .shooting import newton_shoot
 from .eigenaxis import eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
@@ -151,43 +150,6 @@ def _polish_multiple(bvp, a: Attempt, segments):
     a.nit += r.nit
     a.nfev += r.nfev
     return a
-
-
-def _build_solution(bvp, a: Attempt, tr, checks, method, guess_src, problem):
-    tau = bvp.tau
-    umax0 = float(problem.torque_max.max())
-    H0 = bvp.hamiltonian(tr.y[0], tr.signs[0])
-    c = -1.0 / H0 if H0 < 0 else 1.0
-    y0, _ = bvp.initial(a.z)
-    costate0 = np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]])
-    t = tr.t * tau
-    u_nd = af.control_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
-    u = u_nd * umax0
-    costate = np.hstack([c * tau * tr.y[:, 7:11], c * tau ** 2 * tr.y[:, 11:14]])
-    if bvp.mode == af.MODE_BANG:
-        sw = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
-        u_first = tr.signs0.copy()
-        torque = problem.torque_max.copy()
-
-        def control(tq):
-            tq = np.asarray(tq, dtype=float)
-            flips = np.stack([np.searchsorted(sw[i], tq, side="right") for i in range(3)], axis=-1)
-            return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
-    else:
-        sw = [np.zeros(0)] * 3
-        u_first = np.sign(u[0])
-
-        def control(tq):
-            tq = np.asarray(tq, dtype=float)
-            return np.stack([np.interp(tq, t, u[:, i]) for i in range(3)], axis=-1)
-    # tolerance of tf: the boundary errors and the independent replay bound how far the
-    # extremal is from reaching the target; tf is known to that order (relative), and never
-    # better than the integrator's 1e-10
-    err = max(checks[k]["value"] for k in ("boundary_attitude_error", "replay") if k in checks)
-    tf_tol = a.T * tau * max(1e-10, 10.0 * err)
-    return dict(tf=a.T * tau, tf_tol=tf_tol, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
-                q=tr.y[:, 0:4].copy(), omega=tr.y[:, 4:7] / tau, u=u, costate=costate,
-                _control=control, route=a.route, guess=guess_src, verification=checks)
 
 
 def solve(problem, method="auto", guess=None, warm_start="default", **options) -> SlewSolution:
@@ -403,7 +365,7 @@ INACTIVE_CONE_MARGIN = 1e-3
 TOUCH_BUDGET = 1.5   # s: the touch-point refinement's smoothing path after a failed direct attempt
 
 
-def _refine_inactive_cones(prob, col, options, budget_left):
+def _refine_inactive_cones(prob, col, options, budget_left, label="auto"):
     """Exact answer for a cone problem whose cones are all inactive, or ``None``.
 
     If the collocation answer stays ``INACTIVE_CONE_MARGIN`` clear of every cone, the
@@ -414,54 +376,44 @@ def _refine_inactive_cones(prob, col, options, budget_left):
     An unconstrained extremal that is feasible and as fast as the constrained optimum is
     the constrained optimum.
     """
-    from .clearance import certified_min_margin
-    from .verify import replay_path
     per_axis = math.isinf(prob.torque_norm)
     cc = col.verification.get("cone_clearance", {})
     if not per_axis or not prob.is_rest_to_rest or not (cc.get("value", -1.0) > INACTIVE_CONE_MARGIN):
         return None
     ref, accepted = _refine_collocation(prob.replace(cones=[]), col, options, 1, max(0.5, min(2.0, budget_left)))
-    if not accepted:
+    if not accepted or not _certify_clear(prob, ref):
         return None
-    t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, ref.switch_times, ref.u_first,
-                       ref.tf, steps_per_tf=8000)
-    sample_min, certified = certified_min_margin(prob, t, x[:, 0:4], x[:, 4:7])
-    tol = -1e-6
-    ref.verification["cone_clearance"] = make_check(certified, tol, certified >= tol)
-    if certified < tol:
-        return None
-    ref.problem = prob
-    ref.route = (f"auto: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
-                 f"indirect refinement without cones: {ref.route}; certified clearance {certified:.3g} rad")
+    ref.route = (f"{label}: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
+                 f"indirect refinement without cones: {ref.route}; certified clearance "
+                 f"{ref.verification['cone_clearance']['value']:.3g} rad")
     return ref
 
 
-def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False):
+def _certify_clear(prob, sol):
+    """Record on ``sol`` (an answer of ``prob`` without its cones) the certified clearance of
+    its path from the cones of ``prob`` (``cone_clearance``) and rebind it to ``prob``;
+    ``True`` if the path clears every cone at every instant."""
+    from .clearance import CLEARANCE_TOL, answer_clearance
+    certified = answer_clearance(prob, sol)
+    sol.verification["cone_clearance"] = make_check(certified, CLEARANCE_TOL, certified >= CLEARANCE_TOL)
+    sol.problem = prob
+    return certified >= CLEARANCE_TOL
+
+
+def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto"):
     """When collocation fails on a cone problem: the answer of the problem without its cones,
     if its path clears every cone at every instant (certified), else ``None``. A cone far from
     the path can still upset the NLP; the unconstrained optimum that is feasible is the
     constrained optimum."""
-    from .clearance import certified_min_margin
-    from .verify import replay_path
     free_prob = prob.replace(cones=[])
     opts = dict(options, time_budget=max(1.0, budget_left))
     free = (_solve_indirect(free_prob, "indirect", None, **opts) if exact_only
             else _solve_auto(free_prob, None, col_opts, opts))
-    if not free.success or (exact_only and not free.exact):
+    if not free.success or (exact_only and not free.exact) or not _certify_clear(prob, free):
         return None
-    if free.exact and math.isinf(prob.torque_norm):
-        t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, free.switch_times, free.u_first,
-                           free.tf, steps_per_tf=8000)
-        q, w = x[:, 0:4], x[:, 4:7]
-    else:
-        t, q, w = free.t, free.q, free.omega
-    _, certified = certified_min_margin(prob, t, q, w)
-    free.verification["cone_clearance"] = make_check(certified, -1e-6, certified >= -1e-6)
-    if certified < -1e-6:
-        return None
-    free.problem = prob
-    free.route = (f"auto: collocation with the cones failed ({col.message[:120]}) → the problem without cones, "
-                  f"whose path clears them (certified {certified:.3g} rad): {free.route}")
+    free.route = (f"{label}: collocation with the cones failed ({col.message[:120]}) → the problem without cones, "
+                  f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
+                  f"{free.route}")
     return free
 
 
@@ -491,9 +443,8 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget)}, **col_opts))
     if not col.success:
         free = _clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
-                                    exact_only=True)
+                                    exact_only=True, label="indirect with cones")
         if free is not None:
-            free.route = free.route.replace("auto: ", "indirect with cones: ", 1)
             free.wall_time = time.perf_counter() - t0
             return free
         col.success = False
@@ -501,9 +452,8 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
         col.route = f"indirect with cones: collocation seed failed ({col.message[:200]})"
         col.wall_time = time.perf_counter() - t0
         return col
-    ref = _refine_inactive_cones(prob, col, options, budget - (time.perf_counter() - t0))
+    ref = _refine_inactive_cones(prob, col, options, budget - (time.perf_counter() - t0), label="indirect with cones")
     if ref is not None:
-        ref.route = ref.route.replace("auto: ", "indirect with cones: ", 1)
         ref.wall_time = time.perf_counter() - t0
         return ref
     touch = _refine_touching_cones(prob, col, options)
@@ -623,7 +573,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     if found and min(f[0] for f in found) > baseline * (1 + 1e-7):
         best_T = min(f[0] for f in found)
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
-        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
         cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
         return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
                             f"{STATUS_MESSAGES[STATUS_WORSE_THAN_BASELINE]} Best extremal {T * bvp.tau:.9g} vs "
@@ -634,7 +584,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         best_T = min(f[0] for f in found)
         # among extremals with the same final time, report the first one found
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
-        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
         cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
         msg = STATUS_MESSAGES[STATUS_SUCCESS]
         if len(cands) > 1:
@@ -643,7 +593,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
                             candidates_tf=cands, **common, **fields)
     if last_verif_fail is not None:
         a, tr, checks, text, src = last_verif_fail
-        fields = _build_solution(bvp, a, tr, checks, method_used, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
         return SlewSolution(False, STATUS_VERIFICATION_FAILED,
                             f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}", wall_time=wall,
                             **common, **fields)

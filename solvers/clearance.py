@@ -10,7 +10,13 @@ from its switch times alone (fixed-step RK4 of the environment,
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+# the smallest clearance margin (rad) an answer may have anywhere on its path: a start or
+# target on a cone boundary (Melton's R4) leaves the certified bound a few 1e-8 below zero
+CLEARANCE_TOL = -1e-6
 
 
 def sensor_directions(q, sensor_b):
@@ -79,3 +85,15 @@ def cone_clearances(problem, t, q, omega):
         second = np.where(ok, lo_end - B * dt ** 2 / 8.0, -np.inf)
         out.append((float(m.min()), float(np.max([first, second], axis=0).min()), float(m[0]), float(m[-1])))
     return out
+
+
+def answer_clearance(problem, sol, steps_per_tf=8000):
+    """Certified minimum margin over the cones of ``problem`` along the path of ``sol``: for an
+    exact per-axis answer its switch times alone, re-propagated by the environment's RK4
+    (independent of the solver's samples); otherwise its dense samples."""
+    from .verify import replay_path
+    if sol.exact and math.isinf(problem.torque_norm):
+        t, x = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, sol.switch_times,
+                           sol.u_first, sol.tf, steps_per_tf=steps_per_tf)
+        return certified_min_margin(problem, t, x[:, 0:4], x[:, 4:7])[1]
+    return certified_min_margin(problem, sol.t, sol.q, sol.omega)[1]

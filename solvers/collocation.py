@@ -157,7 +157,7 @@ from slew_env import SlewProblem
 from slew_env.core.dynamics import state_rhs
 from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
 from slew_env.core.cones import angle_between, perpendicular_basis
-from .clearance import cone_clearances, margins
+from .clearance import CLEARANCE_TOL, cone_clearances, margins
 from .guesses import Guess
 from .verify import failure_text, make_check
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
@@ -171,7 +171,7 @@ DEFAULT_TOLS = {
     "boundary_attitude_error": 1e-4,   # rad, at N = 60
     "boundary_rate_error": 1e-4,       # nondimensional (ω τ), at N = 60
     "max_defect": 1e-6,                # nondimensional
-    "cone_clearance": -1e-6,           # rad (minimum allowed margin)
+    "cone_clearance": CLEARANCE_TOL,   # rad (minimum allowed margin), -1e-6
     "rate_limit": 1.0 + 1e-4,          # max |ω_i| / rate_max_i on the re-propagated path
     "torque_bound": 1.0 + 1e-6,        # NLP controls, in units of the bound
     "quaternion_norm_drift": 1e-4,

@@ -40,12 +40,12 @@ from scipy.integrate import solve_ivp
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qmul
 from .attitude_bvp import AttitudeBVP, NY
-from .clearance import cone_clearances
+from .clearance import CLEARANCE_TOL, cone_clearances
 from .core import attitude_flow as af
 from .core import cone_penalty as cp
 from .shooting import newton_shoot
 from .solution import (STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution)
-from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check
+from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check, rate_limit_check
 
 # (ε, w) stages of the homotopy from the collocation costates; each one is solved by
 # multiple shooting from the previous answer. w = 1e5 leaves the path about 4e-4 rad inside
@@ -53,7 +53,6 @@ from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check
 # on Melton's cases. Smaller values need more segments (the flow gets stiff).
 STAGES = ((1e-2, 1e4), (1e-2, 1e5), (5e-3, 1e5))
 SEGMENTS = 32
-CLEARANCE_TOL = -1e-6        # rad, as collocation's cone_clearance
 CLEARANCE_AIM = 2e-7         # rad: the back-off aims this far outside the cone
 ENDPOINT_SLACK = 1e-7        # rad: the certified bound's own slack beside a boundary end point
 MAX_BACKOFF_ROUNDS = 8
@@ -289,9 +288,7 @@ def _verified_solution(bvp, problem, seed, z, T, nodes, tols):
     per = cone_clearances(problem, t, Y[:, 0:4], omega)
     cert = min(c[1] for c in per)
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-    if problem.rate_max is not None:
-        worst = float(np.max(np.max(np.abs(omega), axis=0) / problem.rate_max))
-        checks["rate_limit"] = make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
+    checks.update(rate_limit_check(bvp, Y, tols))
     # what a user can replay without the penalised flow: the returned torque samples (linear
     # in between, as control(t)), integrated by the environment's RK4; the smooth control is
     # only sampled, so this is looser than the trajectory's own boundary errors

@@ -30,16 +30,16 @@ import time
 import numpy as np
 
 from slew_env.core.quaternion import qmul
-from .attitude_bvp import AttitudeBVP, NY, quat_left_matrix
-from .clearance import cone_clearances
+from .attitude_bvp import AttitudeBVP, NY, Trajectory, quat_left_matrix
+from .clearance import CLEARANCE_TOL, cone_clearances
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
-from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check, replay_path
+from .indirect import solution_fields
+from .verify import DEFAULT_TOLS, extremal_checks, failure_text, make_check, rate_limit_check, replay_path
 
 NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a contact
 ARC_MARGIN = 1e-4         # rad: a contact that stays this close over 5 % of tf is a boundary arc
-CLEARANCE_TOL = -1e-6     # rad
 SMOOTHING_PATH = (2e-2, 1e-2, 5e-3, 2e-3, 1e-3)
 
 
@@ -315,24 +315,17 @@ def _verify(tp, x, problem, seed, tols):
         sw_t.extend((swt[:n_sw] + t0).tolist())
         sw_a.extend(swa[:n_sw].tolist())
         t0 += dur
-    t = np.concatenate(ts_all)
-    Y = np.vstack(ys_all)
+    order = np.argsort(sw_t, kind="stable")
     S = np.vstack(sg_all)
-    checks = {}
-    checks.update(boundary_checks(bvp, Y[-1], tols))
-    H = af.hamiltonian_batch(Y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, S)
-    drift = float(np.max(np.abs(H - H[0])) / max(abs(H[0]), 1e-300))
-    checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
-    checks["normality"] = make_check(H[0], 0.0, H[0] < 0.0)
-    Sw = Y[:, 11:14] / bvp.J
-    amax = np.max(np.abs(Sw), axis=0)
-    amax[amax == 0] = 1.0
-    worst = float(np.max(S * Sw / amax))
-    checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
+    # the whole path as one record: both sides of each touch are samples at its instant
+    tr = Trajectory(np.concatenate(ts_all), np.vstack(ys_all), S, np.asarray(sw_t)[order],
+                    np.asarray(sw_a, dtype=np.int64)[order], S[0].copy(), True, "")
+    checks = extremal_checks(bvp, tr, tols)
     # touch multipliers: ν ≥ 0 (the cone pushes the path out, never pulls it in). Reported in
     # the solution's costate scale (H ≡ -1, problem units), with the jump of λq at each touch,
     # so that the costates can be replayed: λq(t⁺) = λq(t⁻) + jump
-    c_scale = -1.0 / H[0] if H[0] < 0 else 1.0
+    H0 = bvp.hamiltonian(tr.y[0], tr.signs[0])
+    c_scale = -1.0 / H0 if H0 < 0 else 1.0
     jumps = []
     for k in range(K):
         qk = pieces[k + 1][0][0:4]
@@ -340,46 +333,24 @@ def _verify(tp, x, problem, seed, tols):
     checks["touch_multipliers"] = dict(make_check(float(np.min(nu)), 0.0, bool(np.min(nu) >= 0.0)),
                                        times=(tc * tau).tolist(), cones=tp.cone_ids,
                                        multipliers=(nu * c_scale * tau).tolist(), costate_jumps=jumps)
-    order = np.argsort(sw_t, kind="stable")
-    sw_t = np.asarray(sw_t)[order]
-    sw_a = np.asarray(sw_a, dtype=np.int64)[order]
-    switch_times = [sw_t[sw_a == i] * tau for i in range(3)]
-    u_first = S[0].copy()
+    switch_times = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
     # independent replay of the switch times alone (the environment's RK4), with the
     # clearance certified on it at every instant
-    tr, xr = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, switch_times, u_first,
-                         T * tau, steps_per_tf=20000)
-    rep = max(bvp.attitude_error(xr[-1, 0:4]), float(np.linalg.norm(xr[-1, 4:7] * tau - bvp.wf)))
+    t_rep, x_rep = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, switch_times,
+                               tr.signs0, T * tau, steps_per_tf=20000)
+    rep = max(bvp.attitude_error(x_rep[-1, 0:4]), float(np.linalg.norm(x_rep[-1, 4:7] * tau - bvp.wf)))
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
-    per = cone_clearances(problem, tr, xr[:, 0:4], xr[:, 4:7])
+    per = cone_clearances(problem, t_rep, x_rep[:, 0:4], x_rep[:, 4:7])
     cert = min(p[1] for p in per)
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-    if problem.rate_max is not None:
-        wmax = float(np.max(np.max(np.abs(Y[:, 4:7]), axis=0) / tau / problem.rate_max))
-        checks["rate_limit"] = make_check(wmax, tols["rate_limit"], wmax <= tols["rate_limit"])
+    checks.update(rate_limit_check(bvp, tr.y, tols))
     col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
     slower = (T * tau - seed.tf) / seed.tf
     checks["not_slower_than_seed"] = make_check(slower, 2.0 * col_rel, slower <= 2.0 * col_rel)
     text = failure_text(checks)
-    c = -1.0 / H[0] if H[0] < 0 else 1.0
-    y0, _ = bvp.initial(z)
-    umax0 = float(problem.torque_max.max())
-    u = af.control_batch(Y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, S) * umax0
-    torque = problem.torque_max.copy()
-
-    def control(tq):
-        tq = np.asarray(tq, dtype=float)
-        flips = np.stack([np.searchsorted(switch_times[i], tq, side="right") for i in range(3)], axis=-1)
-        return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
-    tf = T * tau
-    err = max(checks["boundary_attitude_error"]["value"], checks["replay"]["value"])
     msg = (f"Verified extremal found (touching the cones at {K} instant(s), costate jumps there: "
            f"verification['touch_multipliers']).") if not text else f"Touch-point extremal found but {text}."
-    return SlewSolution(
-        not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0, 0.0,
-        tf=tf, tf_tol=tf * max(1e-10, 10.0 * err),
-        costate0=np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]]), switch_times=switch_times,
-        u_first=u_first, t=t * tau, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
-        costate=np.hstack([c * tau * Y[:, 7:11], c * tau ** 2 * Y[:, 11:14]]), method="indirect",
-        route=f"touch-point junctions ({K}) from {_seed_name(seed)} costates", guess=_seed_name(seed), n_candidates=1,
-        candidates_tf=[tf], verification=checks, problem=problem, _control=control)
+    fields = solution_fields(bvp, z, T, f"touch-point junctions ({K}) from {_seed_name(seed)} costates", tr,
+                             checks, _seed_name(seed), problem)
+    return SlewSolution(not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0, 0.0,
+                        method="indirect", n_candidates=1, candidates_tf=[fields["tf"]], problem=problem, **fields)

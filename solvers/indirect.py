@@ -18,6 +18,7 @@ from typing import Optional
 
 import numpy as np
 
+from .core import attitude_flow as af
 from .homotopy import continue_path, set_pnorm, set_tanh, structure_candidates
 from .shooting import newton_shoot
 from .switch_time import Structure, solve_switch_times
@@ -196,3 +197,43 @@ def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9):
                 return Attempt(True, r.p, r.T, None, nit, nfev, "norm continuation from p=2", "converged",
                                r.residual_norm, r.history)
     return Attempt(False, r.p, r.T, None, nit, nfev, "shooting", r.message, r.residual_norm, r.history)
+
+
+def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem):
+    """``SlewSolution`` fields, in the problem's units, of the extremal ``(z, T)`` recorded as
+    ``tr`` (a ``Trajectory``): costates rescaled to ``H ≡ -1``, switch times, the dense samples,
+    the control and ``tf_tol`` from the boundary and replay errors in ``checks``."""
+    tau = bvp.tau
+    umax0 = float(problem.torque_max.max())
+    H0 = bvp.hamiltonian(tr.y[0], tr.signs[0])
+    c = -1.0 / H0 if H0 < 0 else 1.0
+    y0, _ = bvp.initial(z)
+    costate0 = np.concatenate([c * tau * y0[7:11], c * tau ** 2 * y0[11:14]])
+    t = tr.t * tau
+    u_nd = af.control_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
+    u = u_nd * umax0
+    costate = np.hstack([c * tau * tr.y[:, 7:11], c * tau ** 2 * tr.y[:, 11:14]])
+    if bvp.mode == af.MODE_BANG:
+        sw = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
+        u_first = tr.signs0.copy()
+        torque = problem.torque_max.copy()
+
+        def control(tq):
+            tq = np.asarray(tq, dtype=float)
+            flips = np.stack([np.searchsorted(sw[i], tq, side="right") for i in range(3)], axis=-1)
+            return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    else:
+        sw = [np.zeros(0)] * 3
+        u_first = np.sign(u[0])
+
+        def control(tq):
+            tq = np.asarray(tq, dtype=float)
+            return np.stack([np.interp(tq, t, u[:, i]) for i in range(3)], axis=-1)
+    # tolerance of tf: the boundary errors and the independent replay bound how far the
+    # extremal is from reaching the target; tf is known to that order (relative), and never
+    # better than the integrator's 1e-10
+    err = max(checks[k]["value"] for k in ("boundary_attitude_error", "replay") if k in checks)
+    tf_tol = T * tau * max(1e-10, 10.0 * err)
+    return dict(tf=T * tau, tf_tol=tf_tol, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
+                q=tr.y[:, 0:4].copy(), omega=tr.y[:, 4:7] / tau, u=u, costate=costate,
+                _control=control, route=route, guess=guess_src, verification=checks)

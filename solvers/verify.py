@@ -110,6 +110,35 @@ def boundary_checks(bvp, yT, tols):
     return checks
 
 
+def extremal_checks(bvp, tr, tols):
+    """The checks of a recorded extremal ``tr`` (a ``Trajectory``) that do not depend on how
+    it was found: ``boundary_checks`` at its end, ``hamiltonian_drift``, ``normality`` and,
+    for the per-axis bound, ``switching_law`` at every sample."""
+    checks = boundary_checks(bvp, tr.y[-1], tols)
+    H = af.hamiltonian_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
+    H0 = H[0]
+    drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))
+    checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
+    checks["normality"] = make_check(H0, 0.0, H0 < 0.0)
+    if bvp.mode == af.MODE_BANG:
+        S = tr.y[:, 11:14] / bvp.J
+        amax = np.max(np.abs(S), axis=0)
+        amax[amax == 0] = 1.0
+        worst = float(np.max(tr.signs * S / amax))
+        checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
+    return checks
+
+
+def rate_limit_check(bvp, Y, tols):
+    """``rate_limit`` (``max |ω_i| / rate_max_i`` over the nondimensional states ``Y``) when the
+    problem has one, else nothing."""
+    prob = bvp.problem
+    if prob.rate_max is None:
+        return {}
+    worst = float(np.max(np.max(np.abs(Y[:, 4:7]), axis=0) / bvp.tau / prob.rate_max))
+    return {"rate_limit": make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])}
+
+
 def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
     """Run the checks; returns ``(all_passed, checks, first_failure_text, dense_trajectory)``.
 
@@ -123,19 +152,8 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
     if not tr.ok or tr.t.shape[0] < 2:
         checks["propagation"] = make_check(1.0, 0.0, False)
         return False, checks, f"propagation failed: {tr.message}", tr
-    yT = tr.y[-1]
-    checks.update(boundary_checks(bvp, yT, tols))
-    H = af.hamiltonian_batch(tr.y, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, tr.signs)
-    H0 = H[0]
-    drift = float(np.max(np.abs(H - H0)) / max(abs(H0), 1e-300))
-    checks["hamiltonian_drift"] = make_check(drift, tols["hamiltonian_drift"], drift <= tols["hamiltonian_drift"])
-    checks["normality"] = make_check(H0, 0.0, H0 < 0.0)
-    S = tr.y[:, 11:14] / bvp.J
+    checks.update(extremal_checks(bvp, tr, tols))
     if bvp.mode == af.MODE_BANG:
-        amax = np.max(np.abs(S), axis=0)
-        amax[amax == 0] = 1.0
-        worst = float(np.max(tr.signs * S / amax))
-        checks["switching_law"] = make_check(worst, tols["switching_law"], worst <= tols["switching_law"])
         if structure is not None:
             ok_axes = (tr.switch_axis.shape[0] == structure.n and np.array_equal(tr.switch_axis, structure.axes)
                        and np.array_equal(tr.signs0, structure.signs0))
@@ -147,7 +165,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
         x = replay_bang_bang(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw, tr.signs0, T)
         rep = max(bvp.attitude_error(x[0:4]), float(np.linalg.norm(x[4:7] - bvp.wf)))
     else:
-        sig = np.linalg.norm(S * bvp.umax, axis=1)
+        sig = np.linalg.norm(tr.y[:, 11:14] / bvp.J * bvp.umax, axis=1)
         ratio = float(np.min(sig) / max(np.max(sig), 1e-300))
         checks["switching_law"] = make_check(ratio, 0.0, ratio > 0.0)
         J, um, p, eps = bvp.J, bvp.umax, bvp.p, bvp.eps
@@ -163,9 +181,6 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=400, trajectory=None):
         # a p-norm control is continuous except where λω = 0; Radau is less accurate there
         tols["replay"] = max(tols["replay"], 1e-6)
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
-    if prob.rate_max is not None:
-        w = np.max(np.abs(tr.y[:, 4:7]), axis=0) / bvp.tau
-        worst = float(np.max(w / prob.rate_max))
-        checks["rate_limit"] = make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
+    checks.update(rate_limit_check(bvp, tr.y, tols))
     text = failure_text(checks)
     return not text, checks, text, tr
