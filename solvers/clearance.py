@@ -28,14 +28,19 @@ def sensor_directions(q, sensor_b):
     return v + 2.0 * (w * c + np.cross(r, c))
 
 
+def cone_margins(problem, q):
+    """Clearance margin (rad) of each cone of ``problem`` for each row of ``q``: (n, n_cones),
+    ``angle(sensor, axis) - half_angle`` (atan2: accurate near 0 and π)."""
+    d = sensor_directions(np.asarray(q, float), problem.sensor_axis)
+    cols = [np.arctan2(np.linalg.norm(np.cross(d, c.axis), axis=1), d @ c.axis) - c.half_angle
+            for c in problem.cones]
+    return np.stack(cols, axis=1) if cols else np.zeros((d.shape[0], 0))
+
+
 def margins(problem, q):
     """Smallest clearance margin (rad) over the problem's cones, for each row of ``q``."""
-    d = sensor_directions(q, problem.sensor_axis)
-    m = np.full(q.shape[0], np.inf)
-    for c in problem.cones:
-        cross = np.linalg.norm(np.cross(d, c.axis), axis=1)
-        m = np.minimum(m, np.arctan2(cross, d @ c.axis) - c.half_angle)
-    return m
+    m = cone_margins(problem, q)
+    return m.min(axis=1) if m.shape[1] else np.full(m.shape[0], np.inf)
 
 
 def certified_min_margin(problem, t, q, omega):
@@ -59,9 +64,9 @@ def cone_clearances(problem, t, q, omega):
       the smaller end value minus ``B Δt² / 8``; used where ``sin θ`` is bounded away from 0
       over the step. This one is what certifies paths that ride a cone boundary.
     """
-    d = sensor_directions(q, problem.sensor_axis)
     if q.shape[0] < 2 or not problem.cones:
         return []
+    mar = cone_margins(problem, q)
     w = np.linalg.norm(omega, axis=1)
     J = problem.inertia
     # inside a step |ω| exceeds the larger end value by at most amax·Δt, with
@@ -70,9 +75,9 @@ def cone_clearances(problem, t, q, omega):
     dt = np.diff(t)
     W = np.maximum(w[:-1], w[1:]) + amax * dt
     out = []
-    for c in problem.cones:
-        theta = np.arctan2(np.linalg.norm(np.cross(d, c.axis), axis=1), d @ c.axis)
-        m = theta - c.half_angle
+    for k, c in enumerate(problem.cones):
+        m = mar[:, k]
+        theta = m + c.half_angle
         lo_end = np.minimum(m[:-1], m[1:])
         first = np.minimum(0.5 * (m[:-1] + m[1:]) - 0.5 * W * dt, lo_end)
         th_lo = np.minimum(theta[:-1], theta[1:]) - W * dt

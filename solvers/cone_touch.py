@@ -31,7 +31,7 @@ import numpy as np
 
 from slew_env.core.quaternion import qmul
 from .attitude_bvp import AttitudeBVP, NY, Trajectory, quat_left_matrix
-from .clearance import CLEARANCE_TOL, cone_clearances
+from .clearance import CLEARANCE_TOL, cone_clearances, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
@@ -205,12 +205,9 @@ def find_touches(problem, sol):
     """``[(cone index, time index)]`` of the isolated contacts of a dense answer (local minima of
     the margin below ``NEAR_MARGIN``), or ``None`` when a contact lasts (a boundary arc: the
     path stays within ``ARC_MARGIN`` over more than 5 % of the slew)."""
-    from .clearance import sensor_directions
-    d = sensor_directions(np.asarray(sol.q, float), problem.sensor_axis)
     t = np.asarray(sol.t, float)
     out = []
-    for c, cone in enumerate(problem.cones):
-        m = np.arctan2(np.linalg.norm(np.cross(d, cone.axis), axis=1), d @ cone.axis) - cone.half_angle
+    for c, m in enumerate(cone_margins(problem, sol.q).T):
         near = m < NEAR_MARGIN
         # ignore contacts at the very ends (a start or target on the boundary needs no junction)
         near[:2] = False

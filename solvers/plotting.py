@@ -149,13 +149,10 @@ def plot_solution(sol, path=None, dpi=120):
 
 def cone_margins_along(sol) -> np.ndarray:
     """Clearance margin (rad) of each cone at the dense samples of ``sol``: (n, n_cones)."""
-    from .clearance import sensor_directions
+    from .clearance import cone_margins
 
     _require_trajectory(sol)
-    d = sensor_directions(np.asarray(sol.q, dtype=float), sol.problem.sensor_axis)
-    cols = [np.arctan2(np.linalg.norm(np.cross(d, c.axis), axis=1), d @ c.axis) - c.half_angle
-            for c in sol.problem.cones]
-    return np.stack(cols, axis=1) if cols else np.zeros((d.shape[0], 0))
+    return cone_margins(sol.problem, sol.q)
 
 
 def plot_sensor_path(sol, path=None, dpi=120):
