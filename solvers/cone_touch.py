@@ -36,6 +36,8 @@ from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
 from .indirect import solution_fields
+from .guesses import Guess
+from .switch_time import Structure, advance, switch_event
 from .verify import DEFAULT_TOLS, extremal_checks, failure_text, make_check, rate_limit_check, replay_path
 
 NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a contact
@@ -148,6 +150,122 @@ class TouchProblem:
         return Rv, (np.vstack(Jr) if want_jac else None), pieces
 
 
+def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
+    """Residual and Jacobian of the touch problem with a fixed bang-bang structure ``st``
+    (``solvers.switch_time.Structure``), in ``x = [z (6), switch instants (n), T, touch
+    instants (K), multipliers (K)]``:
+
+        |z|² - 1,   S_{a_j}(t_j) = 0 (n),   h = ḣ = 0 at each touch (2K),   boundary (6)
+
+    Square and smooth: the arcs have fixed controls, the switch instants are unknowns (as
+    in ``switch_time``), and each touch applies the jump ``λq⁺ = λq⁻ - 2νMq``. The
+    sensitivity ``G = dy(t)/dx`` at the running time ``t`` picks up ``f⁻ - f⁺`` in the
+    column of each event's instant (the state after it, moved later)."""
+    bvp, K, n = tp.bvp, tp.K, st.n
+    nx = 6 + n + 1 + 2 * K
+    c_T, c_tc, c_nu = 6 + n, 7 + n, 7 + n + K
+    y, dy0 = bvp.initial(z)
+    G = np.zeros((NY, nx))
+    G[:, :6] = dy0
+    signs = st.signs0.astype(float).copy()
+    nr = 1 + n + 2 * K + 6
+    r = np.empty(nr)
+    Jm = np.zeros((nr, nx)) if want_jac else None
+    rp, drp = bvp.param_residual(z)
+    r[0] = rp[0]
+    if want_jac:
+        Jm[0, :6] = drp[0]
+    events = sorted([(float(times[j]), 0, j) for j in range(n)] + [(float(tc[k]), 1, k) for k in range(K)])
+    t_prev = 0.0
+    for t_next, kind, j in events + [(T, 2, -1)]:
+        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
+        if y is None:
+            return None, None
+        t_prev = max(t_prev, t_next)
+        if kind == 2:
+            break
+        if kind == 0:
+            r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
+            continue
+        f = af.ext_rhs(y, bvp.umax * signs, bvp.J) if want_jac else None
+        rr, g = _touch_residual(y, tp.M[j], tp.cos_a[j])
+        r[1 + n + 2 * j:3 + n + 2 * j] = rr
+        Mq = tp.M[j] @ y[0:4]
+        if want_jac:
+            Jm[1 + n + 2 * j:3 + n + 2 * j] = g @ G
+            Jm[1 + n + 2 * j:3 + n + 2 * j, c_tc + j] += g @ f
+            Jmap = np.eye(NY)
+            Jmap[7:11, 0:4] -= 2.0 * nu[j] * tp.M[j]
+            G = Jmap @ G
+            G[7:11, c_nu + j] -= 2.0 * Mq
+        y = y.copy()
+        y[7:11] -= 2.0 * nu[j] * Mq
+        if want_jac:
+            f_plus = af.ext_rhs(y, bvp.umax * signs, bvp.J)
+            G[:, c_tc + j] += Jmap @ f - f_plus
+    rt, dry, drT = bvp.terminal(y, T)
+    r[1 + n + 2 * K:] = rt
+    if want_jac:
+        f = af.ext_rhs(y, bvp.umax * signs, bvp.J)
+        G[:, c_T] += f
+        Jm[1 + n + 2 * K:] = dry @ G
+        Jm[1 + n + 2 * K:, c_T] += drT
+    if not np.all(np.isfinite(r)):
+        return None, None
+    return r, Jm
+
+
+def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3):
+    """Newton with a line search on ``_structured_residual``: ``(x, converged, nit, nfev,
+    residual)`` with ``x = [z, T, touch instants, multipliers]`` as ``TouchProblem`` takes it
+    (the structure is then re-derived by event-driven propagation in the verification)."""
+    n, K = st.n, tp.K
+    x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)],
+                        np.asarray(tc0, float), np.asarray(nu0, float)])
+
+    def split(x):
+        return x[:6], x[6:6 + n], float(x[6 + n]), x[7 + n:7 + n + K], x[7 + n + K:]
+
+    def inside(x):
+        _, tt, T, tc, _ = split(x)
+        return T > 0.0 and np.all(tt >= 0.0) and np.all(tt <= T) and np.all(tc > 0.0) and np.all(tc < T)
+
+    def pack(x):
+        z, _, T, tc, nu = split(x)
+        return np.concatenate([z, [T], tc, nu])
+
+    r, Jm = _structured_residual(tp, *split(x), st, True)
+    nfev = 1
+    if r is None:
+        return pack(x), False, 0, nfev, math.inf
+    scale = np.concatenate([np.ones(6), np.full(n + 1 + K, max(float(T0), 1e-3)), np.maximum(np.abs(nu0), 1.0)])
+    phi = float(r @ r)
+    for it in range(max_iter):
+        rn = float(np.max(np.abs(r)))
+        if rn < tol:
+            return pack(x), True, it, nfev, rn
+        dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]
+        big = float(np.max(np.abs(dx) / scale))
+        if big > max_step:
+            dx *= max_step / big
+        alpha, accepted = 1.0, False
+        while alpha > 1e-6:
+            xt = x + alpha * dx
+            if inside(xt):
+                rt, Jt = _structured_residual(tp, *split(xt), st, True)
+                nfev += 1
+                if rt is not None and float(rt @ rt) < (1.0 - 1e-4 * alpha) * phi:
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            return pack(x), False, it, nfev, rn
+        x, r, Jm = xt, rt, Jt
+        phi = float(r @ r)
+    rn = float(np.max(np.abs(r)))
+    return pack(x), rn < tol, max_iter, nfev, rn
+
+
 def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3):
     """Damped Newton on the touch-point problem: ``(x, converged, nit, nfev, residual)``."""
     x = np.asarray(x0, float).copy()
@@ -233,49 +351,94 @@ def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
     the penalised extremal of ``solvers.cone_penalty``), or a ``SlewSolution`` with
     ``success=False`` saying why not. Accepted only if not slower than the seed."""
     t_start = time.perf_counter()
-    tols = dict(DEFAULT_TOLS, **(tols or {}))
-    fail = lambda why: SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0,   # noqa: E731
-                                    time.perf_counter() - t_start, method="indirect", problem=problem,
-                                    route=f"touch-point junctions: {why}")
     if not math.isinf(problem.torque_norm):
-        return fail("per-axis bound only")
+        return _fail(problem, "per-axis bound only", t_start)
     touches = find_touches(problem, seed)
     if touches is None:
-        return fail("a contact lasts (boundary arc)")
+        return _fail(problem, "a contact lasts (boundary arc)", t_start)
     if not touches:
-        return fail("no touch found")
-    bvp = TouchBVP(problem)
-    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
-    tp = TouchProblem(bvp, [c for c, _ in touches])
-    tau = bvp.tau
-    # guess: costates at t = 0, the contact instants, and the multipliers from the costate
-    # jumps of the seed across each contact (projected on the constraint gradient)
-    lq = np.asarray(seed.costate0[0:4], float) / tau
-    lw = np.asarray(seed.costate0[4:7], float) / tau ** 2
-    mu = qmul(bvp.q0 * np.array([1.0, -1.0, -1.0, -1.0]), lq)[1:4]
-    z = np.concatenate([mu, lw])
-    nz = float(np.linalg.norm(z))
-    ts = np.asarray(seed.t, float) / tau
-    tc, nu = [], []
+        return _fail(problem, "no touch found", t_start)
+    guess = touch_guess_from(problem, seed, touches)
+    col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
+    return solve_touch_guess(problem, guess, reference=(float(seed.tf), 2.0 * col_rel, "not_slower_than_seed"),
+                             tols=tols, time_budget=time_budget, t_start=t_start)
+
+
+def _fail(problem, why, t_start):
+    return SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0, time.perf_counter() - t_start, method="indirect",
+                        problem=problem, route=f"touch-point junctions: {why}")
+
+
+def touch_guess_from(problem, seed, touches) -> Guess:
+    """A ``Guess`` with touches from a dense answer ``seed`` and its contacts ``touches``
+    (``find_touches``): its costates at t = 0, the contact instants, and the multipliers from
+    the seed's costate jumps across each contact, projected on the constraint gradient."""
+    tau = math.sqrt(float(problem.inertia.max()) / float(problem.torque_max.max()))
+    s = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    ts = np.asarray(seed.t, float)
     C = np.asarray(seed.costate, float)
-    for k, (c, i) in enumerate(touches):
-        tc.append(ts[i])
+    rows = []
+    for c, i in touches:
+        M = cone_matrix(problem.cones[c].axis, s)
         lo, hi = max(0, i - 3), min(len(ts) - 1, i + 3)
         qi = np.asarray(seed.q[i], float) / np.linalg.norm(seed.q[i])
         # both projected on the tangent space of the unit sphere: the collocation costate's
         # component along q is a free gauge, and it changes across the contact too
-        jump = (C[hi, 0:4] - C[lo, 0:4]) / tau
+        jump = C[hi, 0:4] - C[lo, 0:4]
         jump = jump - (jump @ qi) * qi
-        g = 2.0 * tp.M[k] @ qi
+        g = 2.0 * M @ qi
         g = g - (g @ qi) * qi
-        nu.append(max(0.0, -float(jump @ g) / max(float(g @ g), 1e-12)) / nz)
-    x0 = np.concatenate([z / nz, [float(seed.tf) / tau], tc, nu])
-    x, ok, nit, nfev, rn = newton(tp, x0)
+        rows.append((c, float(ts[i]), max(0.0, -float(jump @ g) / max(float(g @ g), 1e-12))))
+    # strictly inside (0, tf): a contact sample at the end is excluded by find_touches
+    return Guess(seed.costate0, seed.tf, seed.switch_times, seed.u_first, source=_seed_name(seed), touches=rows)
+
+
+def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=5.0, smoothing=True,
+                      t_start=None):
+    """Newton on the touch-point problem from ``guess`` (a ``Guess`` with ``touches``), then
+    the verification of ``_verify``. ``reference``: ``(tf, relative tolerance, check name)``,
+    the answer must not be slower than ``tf`` by more than the tolerance (a guard against
+    converging to another, worse extremal). ``smoothing``: follow the tanh path when the
+    direct Newton fails (slower; a learned guess skips it for speed)."""
+    t_start = time.perf_counter() if t_start is None else t_start
+    tols = dict(DEFAULT_TOLS, **(tols or {}))
+    if not math.isinf(problem.torque_norm):
+        return _fail(problem, "per-axis bound only", t_start)
+    if not guess.touches:
+        return _fail(problem, "the guess has no touches", t_start)
+    for k, (c, _, _) in enumerate(guess.touches):
+        if c >= len(problem.cones):
+            raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(problem.cones)} cone(s)")
+    bvp = TouchBVP(problem)
+    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
+    tau = bvp.tau
+    lq = np.asarray(guess.costate0[0:4], float) / tau
+    lw = np.asarray(guess.costate0[4:7], float) / tau ** 2
+    mu = qmul(bvp.q0 * np.array([1.0, -1.0, -1.0, -1.0]), lq)[1:4]
+    z = np.concatenate([mu, lw])
+    nz = float(np.linalg.norm(z))
+    if not nz > 0:
+        raise ValueError("guess.costate0: the costate is zero in the solver's gauge")
+    tc = [t / tau for _, t, _ in guess.touches]
+    nu = [m / (tau * nz) for _, _, m in guess.touches]
+    x0 = np.concatenate([z / nz, [float(guess.tf) / tau], tc, nu])
+    ok, nit, nfev, rn = False, 0, 0, math.inf
+    st = _structure_of(guess, tau)
+    if st is not None:
+        # the switch-time formulation first: smooth in its unknowns, so a guess with the right
+        # structure converges from further away than the event-driven Newton below
+        x, ok, nit, nfev, rn = structured_newton(tp, z / nz, st, x0[6], tc, nu)
+        if ok:
+            x0 = x
     if not ok:
+        x, ok, n1, n2, rn = newton(tp, x0)
+        nit, nfev = nit + n1, nfev + n2
+    if not ok and smoothing:
         # the smoothed control law (tanh(S/ε), a homotopy only) makes the residual smooth
         # where a switch appears or vanishes near the guess; follow ε down, then solve the
         # exact bang-bang problem from there
-        xs = x0
+        xs, ok_s = x0, False
         for eps in SMOOTHING_PATH:
             if time.perf_counter() - t_start > time_budget:
                 break
@@ -289,14 +452,26 @@ def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
             x, ok, n1, n2, rn = newton(tp, xs)
             nit, nfev = nit + n1, nfev + n2
     if not ok:
-        return fail(f"Newton did not converge (residual {rn:.2g}, {nit} iterations)")
-    sol = _verify(tp, x, problem, seed, tols)
+        sol = _fail(problem, f"Newton did not converge (residual {rn:.2g}, {nit} iterations)", t_start)
+        sol.nit, sol.nfev = nit, nfev
+        return sol
+    sol = _verify(tp, x, problem, guess.source, reference, tols)
     sol.nit, sol.nfev = nit, nfev
     sol.wall_time = time.perf_counter() - t_start
     return sol
 
 
-def _verify(tp, x, problem, seed, tols):
+def _structure_of(guess, tau):
+    """The bang-bang structure of a guess with switch times and first-arc signs, else ``None``."""
+    if guess.switch_times is None or guess.u_first is None:
+        return None
+    times = np.concatenate([np.asarray(s, float) / tau for s in guess.switch_times])
+    axes = np.concatenate([np.full(len(s), i, dtype=np.int64) for i, s in enumerate(guess.switch_times)])
+    order = np.argsort(times, kind="stable")
+    return Structure(np.where(np.asarray(guess.u_first) >= 0, 1.0, -1.0), axes[order], times[order])
+
+
+def _verify(tp, x, problem, source, reference, tols):
     bvp, K = tp.bvp, tp.K
     tau = bvp.tau
     z, T, tc, nu = tp.unpack(x)
@@ -341,13 +516,14 @@ def _verify(tp, x, problem, seed, tols):
     cert = min(p[1] for p in per)
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
     checks.update(rate_limit_check(bvp, tr.y, tols))
-    col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
-    slower = (T * tau - seed.tf) / seed.tf
-    checks["not_slower_than_seed"] = make_check(slower, 2.0 * col_rel, slower <= 2.0 * col_rel)
+    if reference is not None:
+        ref_tf, ref_rel, name = reference
+        slower = (T * tau - ref_tf) / ref_tf
+        checks[name] = make_check(slower, ref_rel, slower <= ref_rel)
     text = failure_text(checks)
     msg = (f"Verified extremal found (touching the cones at {K} instant(s), costate jumps there: "
            f"verification['touch_multipliers']).") if not text else f"Touch-point extremal found but {text}."
-    fields = solution_fields(bvp, z, T, f"touch-point junctions ({K}) from {_seed_name(seed)} costates", tr,
-                             checks, _seed_name(seed), problem)
+    fields = solution_fields(bvp, z, T, f"touch-point junctions ({K}) from {source} costates", tr,
+                             checks, source, problem)
     return SlewSolution(not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0, 0.0,
                         method="indirect", n_candidates=1, candidates_tf=[fields["tf"]], problem=problem, **fields)

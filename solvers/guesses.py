@@ -39,6 +39,10 @@ class Guess:
     u_first: Optional[np.ndarray] = None
     source: str = "user"
     candidates: list = field(default_factory=list)
+    # keep-out cones touched at isolated instants (``solvers.cone_touch``): a list of
+    # ``(cone index, time, multiplier)``, the multiplier in the scale of ``costate0`` (as
+    # ``verification["touch_multipliers"]`` reports it); ``None``: no touch information
+    touches: Optional[list] = None
 
     def __post_init__(self):
         c = np.asarray(self.costate0, dtype=float)
@@ -56,6 +60,20 @@ class Guess:
             self.switch_times = [np.asarray(s, dtype=float).ravel() for s in self.switch_times]
         if self.u_first is not None:
             self.u_first = np.sign(np.asarray(self.u_first, dtype=float))
+        if self.touches is not None:
+            rows = []
+            for k, t in enumerate(self.touches):
+                try:
+                    c, tt, nu = t
+                    c, tt, nu = int(c), float(tt), float(nu)
+                except (TypeError, ValueError):
+                    raise ValueError(f"guess.touches[{k}]: expected (cone index, time, multiplier), "
+                                     f"got {t!r}") from None
+                if c < 0 or not (0.0 < tt < self.tf) or not (math.isfinite(nu) and nu >= 0.0):
+                    raise ValueError(f"guess.touches[{k}]: needs cone index ≥ 0, 0 < time < tf "
+                                     f"({self.tf:g}) and a finite multiplier ≥ 0, got {t!r}")
+                rows.append((c, tt, nu))
+            self.touches = sorted(rows, key=lambda r: r[1])
 
     def all(self):
         """This guess followed by its candidates."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attitude_bvp import NY
+from .core.attitude_flow import ext_rhs
 
 
 @dataclass
@@ -58,7 +59,6 @@ def _residual(bvp, z, times, T, st, want_jac):
     Switch times are absolute and sorted at each evaluation, so switches on
     different axes may change order freely (the control is separable by axis).
     """
-    from .core.attitude_flow import ext_rhs
     n = st.n
     nx = 6 + n + 1
     y, dy0 = bvp.initial(z)
@@ -73,29 +73,15 @@ def _residual(bvp, z, times, T, st, want_jac):
         Jm[0, :6] = drp[0]
     order = np.argsort(times, kind="stable")
     t_prev = 0.0
-    eye = np.eye(NY)
     for j in list(order) + [-1]:
         t_next = T if j < 0 else float(times[j])
-        dt = t_next - t_prev
-        if dt > 0.0:
-            y1, Phi, ok = bvp.arc(y, dt, signs, eye if want_jac else None)
-            if not ok:
-                return None, None
-            if want_jac:
-                G = Phi @ G
-            y = y1
+        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
+        if y is None:
+            return None, None
         t_prev = max(t_prev, t_next)
         if j < 0:
             break
-        a = int(st.axes[j])
-        r[1 + j] = y[11 + a] / bvp.J[a]
-        if want_jac:
-            f = ext_rhs(y, bvp.umax * signs, bvp.J)
-            Jm[1 + j] = G[11 + a] / bvp.J[a]
-            Jm[1 + j, 6 + j] += f[11 + a] / bvp.J[a]
-            # moving the switch later keeps the old torque on axis a for longer
-            G[4 + a, 6 + j] += 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
-        signs[a] = -signs[a]
+        r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
     rt, dry, drT = bvp.terminal(y, T)
     r[1 + n:] = rt
     if want_jac:
@@ -106,6 +92,35 @@ def _residual(bvp, z, times, T, st, want_jac):
     if not np.all(np.isfinite(r)):
         return None, None
     return r, Jm
+
+
+_EYE = np.eye(NY)
+
+
+def advance(bvp, y, G, dt, signs, want_jac):
+    """One arc of fixed ``signs`` over ``dt`` (nothing if ``dt ≤ 0``): ``(y, G)`` at its end,
+    ``G = dy/dx`` carried through the arc's transition matrix, or ``(None, None)``."""
+    if dt <= 0.0:
+        return y, G
+    y1, Phi, ok = bvp.arc(y, dt, signs, _EYE if want_jac else None)
+    if not ok:
+        return None, None
+    return y1, (Phi @ G if want_jac else G)
+
+
+def switch_event(bvp, y, G, signs, a, col, jac_row=None):
+    """A switch of axis ``a`` at the running state ``y``, its instant the unknown ``col``:
+    returns the residual ``S_a = λω_a / J_a`` and flips ``signs[a]``. With ``jac_row`` (the
+    residual's Jacobian row, filled in place), ``G = dy/dx`` is updated too."""
+    res = y[11 + a] / bvp.J[a]
+    if jac_row is not None:
+        f = ext_rhs(y, bvp.umax * signs, bvp.J)
+        jac_row[:] = G[11 + a] / bvp.J[a]
+        jac_row[col] += f[11 + a] / bvp.J[a]
+        # moving the switch later keeps the old torque on axis a for longer
+        G[4 + a, col] += 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
+    signs[a] = -signs[a]
+    return res
 
 
 def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,

@@ -10,7 +10,9 @@ from slew_env import SlewProblem
 from slew_env.core.quaternion import qrotate
 from solvers import solve
 from solvers.clearance import certified_min_margin, margins
-from solvers.cone_touch import TouchBVP, TouchProblem, find_touches
+from solvers.cone_touch import TouchBVP, TouchProblem, _structured_residual, find_touches, solve_touch_guess
+from solvers.guesses import Guess
+from solvers.switch_time import Structure
 from solvers.core.cone_penalty import cone_matrix
 from solvers.verify import replay_path
 
@@ -101,3 +103,81 @@ def test_auto_returns_the_touch_extremal(touch_solutions):
     _, sol, auto = touch_solutions
     assert auto.success and auto.exact and "touch-point" in auto.route
     assert auto.tf == pytest.approx(sol.tf, rel=1e-10)
+
+
+# ------------------------------------------------------------------ switch-time formulation
+def _answer_guess(sol, **change):
+    """The exact answer read back as a ``Guess`` with its structure and touches."""
+    tm = sol.verification["touch_multipliers"]
+    kw = dict(costate0=sol.costate0, tf=sol.tf, switch_times=sol.switch_times, u_first=sol.u_first,
+              touches=list(zip(tm["cones"], tm["times"], tm["multipliers"])), source="answer")
+    kw.update(change)
+    return Guess(**kw)
+
+
+def test_structured_touch_jacobian_matches_finite_differences(touch_solutions):
+    _, sol, _ = touch_solutions
+    bvp = TouchBVP(TOUCH)
+    bvp.sensor = np.array([1.0, 0.0, 0.0])
+    tp = TouchProblem(bvp, [0])
+    tau = bvp.tau
+    times = np.concatenate([np.asarray(s) / tau for s in sol.switch_times])
+    axes = np.concatenate([np.full(len(s), i) for i, s in enumerate(sol.switch_times)]).astype(np.int64)
+    st = Structure(np.asarray(sol.u_first, float), axes, times)
+    n = st.n
+    z, T = Guess(sol.costate0, sol.tf).to_nondim(bvp)
+    rng = np.random.default_rng(1)
+    x = np.concatenate([z, times, [T], [sol.verification["touch_multipliers"]["times"][0] / tau], [0.5]])
+    x = x + 1e-3 * rng.normal(size=x.shape)
+
+    def f(x, jac=True):
+        return _structured_residual(tp, x[:6], x[6:6 + n], x[6 + n], x[7 + n:8 + n], x[8 + n:], st, jac)
+
+    R, Jm = f(x)
+    assert R.shape == Jm.shape[:1] == (1 + n + 2 + 6,) and Jm.shape[1] == x.shape[0]   # square
+    for j in range(x.shape[0]):
+        e = np.zeros_like(x)
+        e[j] = 1e-7
+        fd = (f(x + e, False)[0] - f(x - e, False)[0]) / 2e-7
+        assert np.allclose(Jm[:, j], fd, atol=2e-6), j
+
+
+def test_answer_read_back_as_a_guess_converges_at_once(touch_solutions):
+    """The units of a guess's touches (instants in problem time, multipliers in the scale of
+    ``costate0``) are those the solution reports: its own answer is a fixed point."""
+    _, sol, _ = touch_solutions
+    again = solve_touch_guess(TOUCH, _answer_guess(sol), smoothing=False)
+    assert again.success, again.message
+    assert again.nit <= 2
+    assert again.tf == pytest.approx(sol.tf, rel=1e-10)
+
+
+def test_structured_newton_converges_from_a_rough_guess(touch_solutions):
+    """Costates 10° off, final time +2 %, switch and touch instants ±3 %, multiplier x1.3:
+    the switch-time formulation (structure fixed) still finds the exact extremal."""
+    _, sol, _ = touch_solutions
+    rng = np.random.default_rng(3)
+    c = np.asarray(sol.costate0)
+    v = rng.normal(size=7)
+    v -= (v @ c) / (c @ c) * c
+    v *= np.linalg.norm(c) * math.tan(math.radians(10.0)) / np.linalg.norm(v)
+    tm = sol.verification["touch_multipliers"]
+    g = _answer_guess(sol, costate0=c + v, tf=sol.tf * 1.02,
+                      switch_times=[np.asarray(s) * (1 + 0.03 * rng.uniform(-1, 1, len(s))) for s in sol.switch_times],
+                      touches=[(tm["cones"][0], tm["times"][0] * 0.97, tm["multipliers"][0] * 1.3)])
+    out = solve_touch_guess(TOUCH, g, smoothing=False)
+    assert out.success, out.message
+    assert out.tf == pytest.approx(sol.tf, rel=1e-9)
+    assert out.verification["touch_multipliers"]["multipliers"][0] == pytest.approx(tm["multipliers"][0], rel=1e-6)
+
+
+def test_guess_touches_are_validated(touch_solutions):
+    _, sol, _ = touch_solutions
+    with pytest.raises(ValueError, match=r"guess.touches\[0\]: needs cone index"):
+        _answer_guess(sol, touches=[(0, sol.tf * 1.5, 1.0)])
+    with pytest.raises(ValueError, match=r"guess.touches\[0\]: needs cone index"):
+        _answer_guess(sol, touches=[(0, 0.5, -1.0)])
+    with pytest.raises(ValueError, match=r"guess.touches\[0\]: expected"):
+        _answer_guess(sol, touches=[(0, 0.5)])
+    with pytest.raises(ValueError, match=r"guess.touches\[0\]: cone index 5, but the problem has 3"):
+        solve_touch_guess(TOUCH, _answer_guess(sol, touches=[(5, 0.5, 1.0)]))
