@@ -236,7 +236,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
 def _warm_start(prob, method, warm_start, options):
     """Try the model's guess alone; returns ``(solution or None, info)``."""
     from . import warmstart
-    model = warmstart.resolve(warm_start)
+    model = warmstart.resolve(warm_start, prob)
     if model is None:
         return None, {}
     name = getattr(model, "name", type(model).__name__)
@@ -262,14 +262,53 @@ def _warm_start(prob, method, warm_start, options):
     total = float(options.get("time_budget", 20.0))
     budget = min(float(options.get("warm_budget", WARM_BUDGET)), total)
     opts = {k: v for k, v in options.items() if k != "warm_budget"}
-    opts.update(max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
-    sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
+    if prob.cones:
+        sol = _solve_learned_cones(prob, g, opts, budget)
+    else:
+        opts.update(max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
+        sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
     sol.warm_start = info
     if sol.success:
         sol.route = f"learned guess ({name}) → {sol.route}"
     return sol, info
+
+
+def _solve_learned_cones(prob, g, options, budget) -> SlewSolution:
+    """A guess for a problem with keep-out cones, tried candidate by candidate: with
+    ``touches``, the touch-point extremal (``cone_touch.solve_touch_guess``, switch-time
+    formulation first when the guess has a structure); without, the extremal of the problem
+    without cones, accepted only if its path clears every cone (certified)."""
+    from .cone_touch import solve_touch_guess
+    t0 = time.perf_counter()
+    tried, last = 0, None
+    nit = nfev = 0
+    for cand in g.all():
+        left = budget - (time.perf_counter() - t0)
+        if left <= 0.0:
+            break
+        tried += 1
+        if cand.touches:
+            sol = solve_touch_guess(prob, cand, tols=options.get("tols"), time_budget=left, smoothing=False)
+        else:
+            opts = dict(options, max_candidates=1, min_candidates=1, enough=1, time_budget=left)
+            sol = _solve_indirect(prob.replace(cones=[]), "indirect", cand, first_verified=True, **opts)
+            if sol.success and not _certify_clear(prob, sol):
+                sol.success, sol.status = False, STATUS_VERIFICATION_FAILED
+                sol.message = (f"the extremal without cones enters a cone (certified clearance "
+                               f"{sol.verification['cone_clearance']['value']:.3g} rad)")
+            sol.problem = prob
+        nit, nfev = nit + sol.nit, nfev + sol.nfev
+        last = sol
+        if sol.success:
+            break
+    if last is None:
+        return SlewSolution(False, STATUS_NOT_CONVERGED, "no time left for the guess", 0, 0,
+                            time.perf_counter() - t0, method="indirect", problem=prob, route="learned guess: no time")
+    last.nit, last.nfev, last.n_candidates = nit, nfev, tried
+    last.wall_time = time.perf_counter() - t0
+    return last
 
 
 def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:

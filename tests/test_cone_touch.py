@@ -115,6 +115,22 @@ def _answer_guess(sol, **change):
     return Guess(**kw)
 
 
+def rough_answer_guess(sol, deg, tf_rel, t_rel, nu_factor, seed, source="answer"):
+    """The exact answer made rough: costates ``deg`` degrees off, final time ``x(1 + tf_rel)``,
+    switch instants randomly within ``±t_rel``, touch instants ``x(1 - t_rel)``, multipliers
+    ``x nu_factor``."""
+    rng = np.random.default_rng(seed)
+    c = np.asarray(sol.costate0)
+    v = rng.normal(size=7)
+    v -= (v @ c) / (c @ c) * c
+    v *= np.linalg.norm(c) * math.tan(math.radians(deg)) / np.linalg.norm(v)
+    tm = sol.verification["touch_multipliers"]
+    return _answer_guess(sol, costate0=c + v, tf=sol.tf * (1 + tf_rel), source=source,
+                         switch_times=[np.asarray(s) * (1 + t_rel * rng.uniform(-1, 1, len(s))) for s in sol.switch_times],
+                         touches=[(c_, t * (1 - t_rel), m * nu_factor)
+                                  for c_, t, m in zip(tm["cones"], tm["times"], tm["multipliers"])])
+
+
 def test_structured_touch_jacobian_matches_finite_differences(touch_solutions):
     _, sol, _ = touch_solutions
     bvp = TouchBVP(TOUCH)
@@ -156,15 +172,8 @@ def test_structured_newton_converges_from_a_rough_guess(touch_solutions):
     """Costates 10° off, final time +2 %, switch and touch instants ±3 %, multiplier x1.3:
     the switch-time formulation (structure fixed) still finds the exact extremal."""
     _, sol, _ = touch_solutions
-    rng = np.random.default_rng(3)
-    c = np.asarray(sol.costate0)
-    v = rng.normal(size=7)
-    v -= (v @ c) / (c @ c) * c
-    v *= np.linalg.norm(c) * math.tan(math.radians(10.0)) / np.linalg.norm(v)
     tm = sol.verification["touch_multipliers"]
-    g = _answer_guess(sol, costate0=c + v, tf=sol.tf * 1.02,
-                      switch_times=[np.asarray(s) * (1 + 0.03 * rng.uniform(-1, 1, len(s))) for s in sol.switch_times],
-                      touches=[(tm["cones"][0], tm["times"][0] * 0.97, tm["multipliers"][0] * 1.3)])
+    g = rough_answer_guess(sol, 10.0, 0.02, 0.03, 1.3, seed=3)
     out = solve_touch_guess(TOUCH, g, smoothing=False)
     assert out.success, out.message
     assert out.tf == pytest.approx(sol.tf, rel=1e-9)

@@ -17,6 +17,8 @@ from .nearest import NearestNeighbourModel
 
 MODELS_DIR = os.path.join(os.path.dirname(__file__), "models")
 DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
+# the shipped model for pointing-only slews with keep-out cones (used by default when present)
+DEFAULT_CONE_MODEL_FILE = os.path.join(MODELS_DIR, "pointing-cones.npz")
 
 
 def load_model(path):
@@ -46,11 +48,25 @@ def default_model() -> WarmStartModel:
     return WarmStartModel.load(DEFAULT_MODEL_FILE)
 
 
-def resolve(warm_start):
-    """``"default"`` → the shipped model; a path → that file; a model → itself; ``None`` → ``None``."""
+@functools.lru_cache(maxsize=1)
+def default_cone_model():
+    """The shipped pointing-cones model, or ``None`` if none is shipped."""
+    if not os.path.exists(DEFAULT_CONE_MODEL_FILE):
+        return None
+    return WarmStartModel.load(DEFAULT_CONE_MODEL_FILE)
+
+
+def resolve(warm_start, problem=None):
+    """``"default"`` → the shipped model for ``problem``'s family (the pointing-cones model for a
+    pointing-only target with cones, when shipped; else the full-attitude model); a path → that
+    file; a model → itself; ``None`` → ``None``."""
     if warm_start is None or warm_start is False:
         return None
     if isinstance(warm_start, str) and warm_start == "default":
+        if problem is not None and problem.cones and problem.qf is None:
+            cone = default_cone_model()
+            if cone is not None:
+                return cone
         return default_model()
     if isinstance(warm_start, (str, os.PathLike)):
         return load_model(warm_start)
@@ -63,4 +79,4 @@ def resolve(warm_start):
 __all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "features",
            "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
            "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
-           "resolve", "DEFAULT_MODEL_FILE"]
+           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_CONE_MODEL_FILE", "default_cone_model"]

@@ -111,19 +111,26 @@ class WarmStartModel:
         self.activation = card.get("activation", "silu")
         if self.activation not in ACTIVATIONS:
             raise ModelFileError(f"card.activation: unknown activation {self.activation!r}")
+        self._check_layout(card)
+        self.domain = card.get("domain", {})
+        self.name = card.get("name", "warm-start model")
+        self.path = card.get("_path")
+
+    KIND = "full-attitude"
+
+    def _check_layout(self, card):
         self.K = int(card["max_switches"])
         self.layout = {k: tuple(v) for k, v in card.get("output_layout", output_layout(self.K)).items()}
         n_out = self.weights[-1][0].shape[1]
         if n_out != output_size(self.K) or self.weights[0][0].shape[0] != N_FEATURES:
             raise ModelFileError(f"weights: shapes {self.weights[0][0].shape[0]} → {n_out} do not match "
                                  f"{N_FEATURES} features → {output_size(self.K)} outputs (max_switches {self.K})")
-        self.domain = card.get("domain", {})
-        self.name = card.get("name", "warm-start model")
-        self.path = card.get("_path")
 
     # ------------------------------------------------------------------ file
     @classmethod
     def load(cls, path) -> "WarmStartModel":
+        """The model in ``path``, of the class its card names (``kind``: ``"full-attitude"``
+        or ``"pointing-cones"``)."""
         path = os.fspath(path)
         data = read_npz(path)
         if "card" not in data:
@@ -147,6 +154,12 @@ class WarmStartModel:
         if weights_checksum(arrays) != card.get("sha256"):
             raise ModelFileError(f"model: {path}: weights do not match the checksum in the card (corrupt file)")
         card["_path"] = path
+        kind = card.get("kind", "full-attitude")
+        if kind == "pointing-cones":
+            from .cone_model import ConeWarmStartModel
+            return ConeWarmStartModel(weights, x_mean, x_std, card)
+        if kind != "full-attitude":
+            raise ModelFileError(f"model: {path}: unknown model kind {kind!r}")
         return cls(weights, x_mean, x_std, card)
 
     def save(self, path):
@@ -159,7 +172,7 @@ class WarmStartModel:
         arrays["x_mean"] = np.asarray(self.x_mean, np.float64)
         arrays["x_std"] = np.asarray(self.x_std, np.float64)
         card = {k: v for k, v in self.card.items() if not k.startswith("_")}
-        card.update(format=FORMAT, format_version=FORMAT_VERSION, n_layers=len(self.weights),
+        card.update(format=FORMAT, format_version=FORMAT_VERSION, n_layers=len(self.weights), kind=self.KIND,
                     max_switches=self.K, output_layout={k: list(v) for k, v in self.layout.items()},
                     activation=self.activation,
                     sha256=weights_checksum(flat + [arrays["x_mean"], arrays["x_std"]]))

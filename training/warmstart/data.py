@@ -31,30 +31,39 @@ def is_exact(rec: dict) -> bool:
     return rec.get("method") in ("indirect", "multiple-shooting")
 
 
-def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
-    """Arrays from one or more dataset files (see the module docstring)."""
+def exact_records(paths, family, counts):
+    """``(path, record)`` for the exact records of the dataset files ``paths`` (one path or a
+    list), in index order; ``counts["seen"]`` and ``counts["exact"]`` are kept up to date.
+    A file of another ``family`` (unless ``None``) is an error."""
     if isinstance(paths, (str, bytes)) or hasattr(paths, "__fspath__"):
         paths = [paths]
-    rows = []
-    n_seen = n_exact = n_overflow = 0
+    counts.update(seen=0, exact=0)
     for path in paths:
         meta, recs = ds.read(path)
         if family is not None and meta.get("family") != family:
             raise ValueError(f"{path}: family {meta.get('family')!r}, expected {family!r}")
         for r in sorted(recs, key=lambda r: r["index"]):
-            n_seen += 1
-            if not is_exact(r):
-                continue
-            n_exact += 1
-            p = r["problem"]
-            cf = canonical_form(p)
-            if r.get("switch_times") is None or r.get("u_first") is None:
-                continue
-            z, T, sw, uf = solution_to_canonical(p, cf, r["costate0"], r["tf"], r["switch_times"], r["u_first"])
-            if max(len(a) for a in sw) > int(max_switches):
-                n_overflow += 1      # a structure the network cannot represent: left out, counted
-                continue
-            rows.append((cf.x, z, T, cf.T_eig, uf, sw, f"{path}:{r['index']}"))
+            counts["seen"] += 1
+            if is_exact(r):
+                counts["exact"] += 1
+                yield path, r
+
+
+def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
+    """Arrays from one or more dataset files (see the module docstring)."""
+    rows = []
+    n_overflow = 0
+    counts = {}
+    for path, r in exact_records(paths, family, counts):
+        p = r["problem"]
+        cf = canonical_form(p)
+        if r.get("switch_times") is None or r.get("u_first") is None:
+            continue
+        z, T, sw, uf = solution_to_canonical(p, cf, r["costate0"], r["tf"], r["switch_times"], r["u_first"])
+        if max(len(a) for a in sw) > int(max_switches):
+            n_overflow += 1      # a structure the network cannot represent: left out, counted
+            continue
+        rows.append((cf.x, z, T, cf.T_eig, uf, sw, f"{path}:{r['index']}"))
     K = int(max_switches)
     N = len(rows)
     out = {"X": np.zeros((N, len(rows[0][0]) if N else 11)), "Z": np.zeros((N, 6)), "T": np.zeros(N),
@@ -74,9 +83,9 @@ def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
             out["S"][k, i, :m] = np.sort(sw[i])[:m]
     out["log_T_ratio"] = np.log(out["T"] / np.maximum(out["T_eig"], 1e-300))
     out["F"] = out["S"] / np.maximum(out["T"], 1e-300)[:, None, None]
-    out["n_records"] = n_seen
+    out["n_records"] = counts["seen"]
     out["n_overflow"] = n_overflow
-    out["n_exact"] = n_exact
+    out["n_exact"] = counts["exact"]
     return out
 
 

@@ -86,20 +86,28 @@ def _run_one(args):
 
 def inference_time(model, family, seed, n=200):
     """Median seconds per problem of canonical form + network (no solver)."""
+    from solvers.warmstart.cone_features import cone_canonical_form
+    from solvers.warmstart.cone_model import ConeWarmStartModel
     from solvers.warmstart.features import canonical_form
     from training.generate import GenerationSpec, problem_for
+    if isinstance(model, ConeWarmStartModel):
+        def infer(p):
+            cf = cone_canonical_form(p)
+            model.predict_canonical(cf.x, cf.T_ref)
+    else:
+        def infer(p):
+            cf = canonical_form(p)
+            model.predict_canonical(cf.x, cf.T_eig)
     probs = [problem_for(GenerationSpec(family, seed=seed), i) for i in range(n)]
     probs = [p for p in probs if model.covers(p) is None]
     if not probs:
         return math.nan
     for p in probs:    # one warm-up pass: first calls load compiled code, the CPU clocks up
-        cf = canonical_form(p)
-        model.predict_canonical(cf.x, cf.T_eig)
+        infer(p)
     ts = []
     for p in probs:
         t0 = time.perf_counter()
-        cf = canonical_form(p)
-        model.predict_canonical(cf.x, cf.T_eig)
+        infer(p)
         ts.append(time.perf_counter() - t0)
     return float(np.median(ts))
 

@@ -44,19 +44,39 @@ def load_config(path=None, overrides=None) -> dict:
     return cfg
 
 
+def _is_cones(cfg):
+    return cfg.get("family") == "pointing-cones"
+
+
 def _net(cfg, torch):
     from solvers.warmstart.features import N_FEATURES
     from solvers.warmstart.model import output_size
     act = {"silu": torch.nn.SiLU, "tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[cfg.get("activation", "silu")]
-    layers, n_in = [], N_FEATURES
+    if _is_cones(cfg):
+        from solvers.warmstart.cone_model import cone_output_size
+        from .cone_data import N_IN as n_in
+        n_out = cone_output_size(int(cfg["max_switches"]))
+    else:
+        n_in, n_out = N_FEATURES, output_size(int(cfg["max_switches"]))
+    layers = []
     for h in cfg["hidden"]:
         layers += [torch.nn.Linear(n_in, int(h)), act()]
         n_in = int(h)
-    layers.append(torch.nn.Linear(n_in, output_size(int(cfg["max_switches"]))))
+    layers.append(torch.nn.Linear(n_in, n_out))
     return torch.nn.Sequential(*layers)
 
 
+def _arrays(data_paths, cfg):
+    if _is_cones(cfg):
+        from .cone_data import training_arrays as cone_arrays
+        return cone_arrays(data_paths, family="pointing-cones", max_switches=int(cfg["max_switches"]))
+    return training_arrays(data_paths, int(cfg["max_switches"]), family=cfg.get("family"))
+
+
 def _losses(out, batch, cfg, torch):
+    if _is_cones(cfg):
+        from .cone_data import losses
+        return losses(out, batch, cfg, torch)
     from solvers.warmstart.model import output_layout
     K = int(cfg["max_switches"])
     L = output_layout(K)
@@ -88,6 +108,10 @@ def _losses(out, batch, cfg, torch):
 
 
 def _tensors(arrays, idx, torch):
+    if "touch" in arrays:
+        from .cone_data import TENSOR_KEYS
+        return {k: torch.tensor(arrays[k][idx], dtype=torch.int64 if t == "long" else torch.float32)
+                for k, t in TENSOR_KEYS.items()}
     return {"X": torch.tensor(arrays["X"][idx], dtype=torch.float32),
             "Z": torch.tensor(arrays["Z"][idx], dtype=torch.float32),
             "log_T_ratio": torch.tensor(arrays["log_T_ratio"][idx], dtype=torch.float32),
@@ -108,7 +132,7 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         cfg["epochs"] = int(epochs)
     os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     data_paths = [os.fspath(p) for p in data_paths]
-    arrays = training_arrays(data_paths, int(cfg["max_switches"]), family=cfg.get("family"))
+    arrays = _arrays(data_paths, cfg)
     N = arrays["X"].shape[0]
     if N < 10:
         raise ValueError(f"data: only {N} exact solutions in {data_paths}; need at least 10")
@@ -166,7 +190,7 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         if bar is not None:
             bar.update(1)
             bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
-                            struct=f"{met.get('structure_acc', 0):.3f}")
+                            struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
         if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
             torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
                         "epoch": epoch + 1, "log": log_rows}, os.path.join(out, "checkpoints", f"epoch_{epoch + 1:04d}.pt"))
@@ -195,13 +219,20 @@ def export(net, cfg, x_mean, x_std, training_info, path):
     import solvers
     lin = [m for m in net if hasattr(m, "weight")]
     weights = [(m.weight.detach().numpy().T.astype(np.float32), m.bias.detach().numpy().astype(np.float32)) for m in lin]
+    if _is_cones(cfg):
+        from solvers.warmstart.cone_model import ConeWarmStartModel as cls, cone_output_layout
+        K = int(cfg["max_switches"])
+        layout = cone_output_layout(K)
+    else:
+        cls, K = WarmStartModel, int(cfg["max_switches"])
+        layout = output_layout(K)
     card = {"name": f"learned warm start ({cfg.get('family')})", "family": cfg.get("family"),
-            "activation": cfg.get("activation", "silu"), "max_switches": int(cfg["max_switches"]),
-            "output_layout": {k: list(v) for k, v in output_layout(int(cfg["max_switches"])).items()},
+            "activation": cfg.get("activation", "silu"), "max_switches": K, "kind": cls.KIND,
+            "output_layout": {k: list(v) for k, v in layout.items()},
             "hidden": list(cfg["hidden"]), "domain": cfg.get("domain", {}), "training": training_info,
             "slewopt_version": getattr(solvers, "__version__", "0.1.0"),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    m = WarmStartModel([(W.astype(np.float64), b.astype(np.float64)) for W, b in weights], x_mean, x_std, card)
+    m = cls([(W.astype(np.float64), b.astype(np.float64)) for W, b in weights], x_mean, x_std, card)
     m.weights = weights
     m.save(path)
     write_card_md(m.card, os.path.splitext(path)[0] + ".md")

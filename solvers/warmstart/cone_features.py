@@ -1,0 +1,191 @@
+"""Canonical form of a pointing-only slew with keep-out cones (family (b) of ``slew generate``).
+
+A rest-to-rest pointing slew is fixed by where the target direction and the cone axes lie
+in the *start body frame*, the inertia, the torque bound and the sensor axis. The canonical
+form removes what does not change the answer:
+
+* **units** — inertia ``J / J_max``, bound ``u_max / max(u_max)``, time in
+  ``τ = sqrt(J_max / u_max)`` (the solver's nondimensional units);
+* **the inertial frame** — target ``d`` and cone axes ``a_k`` are expressed in the start body
+  frame (``R(q0)ᵀ d``), so the start attitude is the identity;
+* **the labelling of the body axes, and mirror images** — a signed axis permutation ``A``
+  takes the sensor axis to ``+x``. Besides the rotations of the cube, ``A`` may be a
+  reflection: the mirror image of a slew (inertial and body frames reflected together,
+  ``R → A R A``) is a slew of the same body under the same box bound in the same time, with
+  polar vectors (target, cone axes) mapped by ``A`` and axial ones (rates, torques, the
+  costates) by ``det(A) A``. Of the eight ``A`` with ``A s = +x``, the one with
+  ``J'_y ≥ J'_z``, then the target's ``y`` component ``≥ 0``, then its ``z`` component
+  ``≥ 0`` is taken, so the target lies in one quadrant. The sensor must therefore lie along a
+  body axis (the family's default ``[1, 0, 0]`` does);
+* **the order of the cones** — slots sorted by how much each cone blocks the great circle
+  from the sensor to the target (its margin to that arc, most blocking first); unused slots
+  are zero.
+
+Features (``CONE_FEATURE_NAMES``, 24): ``d'`` (3), ``J'`` (3), ``u'`` (3), then per cone slot
+``a'`` (3), ``α`` (rad) and a presence flag. Solutions map with
+``det(A) A``: ``z' = det(A) A z`` for the nondimensional costates ``z = [μ, λω(0)]`` (gauge
+``λq(0) = q(0) ⊗ [0, μ]``, unit norm); the touch-point multipliers of ``solvers.cone_touch``
+in the same normalisation (``ν / |z_raw|``), touch instants nondimensional.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from slew_env import SlewProblem
+from slew_env.core.quaternion import qconj, qmul, qrotate_inv
+from ..guesses import eigenaxis_acceleration
+
+MAX_CONES = 3
+CONE_SLOT = ("ax", "ay", "az", "half_angle", "present")
+CONE_FEATURE_NAMES = ("d1", "d2", "d3", "J1", "J2", "J3", "u1", "u2", "u3") + tuple(
+    f"cone{k}_{n}" for k in range(MAX_CONES) for n in CONE_SLOT)
+N_CONE_FEATURES = len(CONE_FEATURE_NAMES)
+_ARC_SAMPLES = 33
+
+
+def _signed_permutations():
+    """The 48 signed axis permutations (rotations and reflections of the cube)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            A = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                A[i, j] = signs[i]
+            out.append(A)
+    return out
+
+
+_CUBE = _signed_permutations()
+
+
+@dataclass(frozen=True)
+class ConeCanonicalForm:
+    """A pointing problem in canonical axes. ``A`` maps body vectors to canonical ones."""
+    A: np.ndarray           # (3, 3) signed permutation, a rotation or a reflection
+    x: np.ndarray           # features (N_CONE_FEATURES,)
+    tau: float              # time unit sqrt(J_max / u_max)
+    T_ref: float            # nondimensional time of the eigenaxis pointing slew (cones ignored)
+    slots: tuple            # slots[k] = index of the problem cone in canonical slot k
+
+    @property
+    def axial(self) -> np.ndarray:
+        """The map of axial body vectors (rates, torques, costates): ``det(A) A``."""
+        return round(float(np.linalg.det(self.A))) * self.A
+
+    @property
+    def order(self) -> list:
+        """Canonical axis ``i`` is body axis ``order[i]``."""
+        return [int(np.argmax(np.abs(self.A[i]))) for i in range(3)]
+
+
+def cone_unsupported_reason(problem: SlewProblem) -> Optional[str]:
+    """Why ``problem`` has no pointing-cones canonical form (``None`` if it has one)."""
+    if problem.qf is not None:
+        return "qf: the pointing-cones form is for pointing-only targets (sensor_target)"
+    if not problem.is_rest_to_rest:
+        return "omega0, omegaf: the canonical form is defined for rest-to-rest slews"
+    if len(problem.cones) > MAX_CONES:
+        return f"cones: at most {MAX_CONES} keep-out cones, got {len(problem.cones)}"
+    s = np.asarray(problem.sensor_axis, float)
+    s = s / np.linalg.norm(s)
+    if np.max(np.abs(s)) < 1.0 - 1e-12:
+        return "sensor_axis: the canonical form needs the sensor along a body axis"
+    return None
+
+
+def _arc_margin(a, half_angle, d):
+    """Smallest angle from the cone ``(a, half_angle)`` boundary to the great circle from
+    ``+x`` to ``d`` (negative when the arc enters the cone)."""
+    e1 = np.array([1.0, 0.0, 0.0])
+    c = float(np.clip(d[0], -1.0, 1.0))
+    th = math.acos(c)
+    perp = d - c * e1
+    n = np.linalg.norm(perp)
+    # opposite target: every great circle is shortest; take the one through +z (deterministic)
+    perp = perp / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
+    s = np.linspace(0.0, th, _ARC_SAMPLES)
+    pts = np.cos(s)[:, None] * e1 + np.sin(s)[:, None] * perp
+    return float(np.min(np.arccos(np.clip(pts @ a, -1.0, 1.0)))) - half_angle
+
+
+def cone_canonical_form(problem) -> ConeCanonicalForm:
+    """The canonical form of a pointing-only ``problem`` (``ValueError`` when it has none)."""
+    if not isinstance(problem, SlewProblem):
+        problem = SlewProblem.from_dict(problem)
+    why = cone_unsupported_reason(problem)
+    if why:
+        raise ValueError(why)
+    s = np.asarray(problem.sensor_axis, float)
+    s = s / np.linalg.norm(s)
+    Jmax = float(problem.inertia.max())
+    umax = float(problem.torque_max.max())
+    d_body = qrotate_inv(np.asarray(problem.q0, float), np.asarray(problem.sensor_target, float))
+    best, key_best = None, None
+    for A in _CUBE:
+        if (A @ s)[0] < 0.5:
+            continue
+        J = np.abs(A) @ problem.inertia
+        d = A @ d_body
+        key = (round(float(J[1] - J[2]), 9), round(float(d[1]), 9), round(float(d[2]), 9))
+        if key_best is None or key > key_best:
+            best, key_best = A, key
+    A = best
+    d = A @ d_body
+    d = d / np.linalg.norm(d)
+    Jn = (np.abs(A) @ problem.inertia) / Jmax
+    un = (np.abs(A) @ problem.torque_max) / umax
+    cones = []
+    for i, c in enumerate(problem.cones):
+        a = A @ qrotate_inv(np.asarray(problem.q0, float), np.asarray(c.axis, float))
+        a = a / np.linalg.norm(a)
+        cones.append((_arc_margin(a, c.half_angle, d), i, a, float(c.half_angle)))
+    cones.sort(key=lambda r: (r[0], r[1]))
+    x = np.zeros(N_CONE_FEATURES)
+    x[0:3] = d
+    x[3:6] = Jn
+    x[6:9] = un
+    for k, (_, _, a, ha) in enumerate(cones):
+        x[9 + 5 * k:9 + 5 * k + 3] = a
+        x[9 + 5 * k + 3] = ha
+        x[9 + 5 * k + 4] = 1.0
+    # eigenaxis pointing slew (cones ignored): about +x × d through the angle between them
+    th = math.acos(float(np.clip(d[0], -1.0, 1.0)))
+    ax = np.cross([1.0, 0.0, 0.0], d)
+    nax = np.linalg.norm(ax)
+    ax = ax / nax if nax > 1e-9 else np.array([0.0, 0.0, 1.0])
+    acc = eigenaxis_acceleration(Jn, un, math.inf, ax)
+    T_ref = 2.0 * math.sqrt(max(th, 1e-6) / acc)
+    return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(r[1] for r in cones))
+
+
+def cone_features(problem) -> np.ndarray:
+    return cone_canonical_form(problem).x
+
+
+def costate_to_canonical(problem, cf: ConeCanonicalForm, costate0):
+    """Costates in problem units → ``(z', |z_raw|)``: canonical unit-norm costates and the norm
+    of the nondimensional costates they were scaled from (touch multipliers scale with it)."""
+    c = np.asarray(costate0, float)
+    mu = qmul(qconj(np.asarray(problem.q0, float)), c[:4])[1:4] / cf.tau
+    lw = c[4:7] / cf.tau ** 2
+    B = cf.axial
+    z = np.concatenate([B @ mu, B @ lw])
+    nz = float(np.linalg.norm(z))
+    if not nz > 0:
+        raise ValueError("costate0: zero in the solver's gauge")
+    return z / nz, nz
+
+
+def costate_from_canonical(problem, cf: ConeCanonicalForm, z):
+    """Canonical costates ``z'`` → ``costate0`` in problem units (the same scale as ``z'``)."""
+    z = np.asarray(z, float)
+    B = cf.axial
+    mu = B.T @ z[:3]
+    lw = B.T @ z[3:6]
+    lq = qmul(np.asarray(problem.q0, float), np.array([0.0, mu[0], mu[1], mu[2]])) * cf.tau
+    return np.concatenate([lq, lw * cf.tau ** 2])

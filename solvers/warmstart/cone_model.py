@@ -1,0 +1,146 @@
+"""Learned warm start for pointing-only slews with keep-out cones (numpy inference).
+
+The network maps the canonical features of ``cone_features`` to
+
+* the nondimensional costates ``z'`` (canonical axes, unit norm, the gauge of
+  ``solvers.attitude_bvp``) at t = 0;
+* the final time, as ``log(T / T_ref)`` (``T_ref``: the eigenaxis pointing slew, cones
+  ignored);
+* for each cone slot: whether the optimal path touches that cone (a logit), when (a logit of
+  the fraction of ``T``) and with which multiplier (``log ν``, ``ν`` in the normalisation of
+  ``z'``; ``solvers.cone_touch``);
+* the switching structure, as in ``model.WarmStartModel``: first-arc signs, switches per
+  canonical axis (0 … ``max_switches``) and their instants as fractions of ``T``.
+
+``guess(problem)`` returns a ``solvers.Guess`` whose ``touches`` are the predicted contacts
+(probability above one half), followed by the other reading as a candidate: no touch if
+touches were predicted, else the most likely touch. Every guess carries the predicted
+switching structure, so the solver goes straight to the switch-time Newton (with the touch
+junctions, ``cone_touch.structured_newton``; without touches, the extremal of the problem
+without cones, whose path clearance is then certified).
+
+File format: that of ``model.WarmStartModel`` with ``kind: "pointing-cones"`` in the card and
+the output layout ``cone_output_layout(max_switches)``.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from slew_env import SlewProblem
+from ..guesses import Guess
+from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason,
+                            costate_from_canonical)
+from .model import ModelFileError, WarmStartModel
+
+
+
+def cone_output_layout(max_switches: int) -> dict:
+    """Slices of the output vector (also written in the card)."""
+    K, C = int(max_switches), MAX_CONES
+    o = {"z": (0, 6), "log_T_ratio": (6, 7), "touch_logit": (7, 7 + C), "touch_time_logit": (7 + C, 7 + 2 * C),
+         "log_nu": (7 + 2 * C, 7 + 3 * C)}
+    b = 7 + 3 * C
+    o.update(u_first_logit=(b, b + 3), count_logits=(b + 3, b + 3 + 3 * (K + 1)),
+             times_logit=(b + 3 + 3 * (K + 1), b + 3 + 3 * (K + 1) + 3 * K))
+    return o
+
+
+def cone_output_size(max_switches: int) -> int:
+    return cone_output_layout(max_switches)["times_logit"][1]
+
+SECOND_TOUCH_PROB = 0.1   # a touch this likely is tried as a candidate when none is predicted
+
+
+class ConeWarmStartModel(WarmStartModel):
+    """A numpy MLP warm-start model for the pointing-cones family (module docstring)."""
+
+    KIND = "pointing-cones"
+
+    def _check_layout(self, card):
+        self.K = int(card["max_switches"])
+        self.layout = {k: tuple(v) for k, v in card.get("output_layout", cone_output_layout(self.K)).items()}
+        n_in, n_out = self.weights[0][0].shape[0], self.weights[-1][0].shape[1]
+        if n_out != cone_output_size(self.K) or n_in != N_CONE_FEATURES:
+            raise ModelFileError(f"weights: shapes {n_in} → {n_out} do not match {N_CONE_FEATURES} features → "
+                                 f"{cone_output_size(self.K)} outputs of a pointing-cones model "
+                                 f"(max_switches {self.K})")
+
+    def _coverage(self, problem):
+        why = cone_unsupported_reason(problem)
+        if why:
+            return why, None
+        d = self.domain
+        if problem.rate_max is not None and not d.get("rate_max", False):
+            return "rate_max: the model was trained without rate limits", None
+        if not math.isinf(problem.torque_norm):
+            return f"torque_norm: the model covers the per-axis bound ('inf'), got {problem.torque_norm}", None
+        lo_n, hi_n = d.get("n_cones", (1, MAX_CONES))
+        if not lo_n <= len(problem.cones) <= hi_n:
+            return f"cones: the model covers {lo_n}–{hi_n} cones, got {len(problem.cones)}", None
+        cf = cone_canonical_form(problem)
+        th_deg = math.degrees(math.acos(float(np.clip(cf.x[0], -1.0, 1.0))))
+        lo, hi = d.get("angle_deg", (0.0, 180.0))
+        if not (lo - 1e-9 <= th_deg <= hi + 1e-9):
+            return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]", cf
+        rlo = d.get("inertia_ratio", (0.0, 1.0))[0]
+        if float(cf.x[3:6].min()) < rlo - 1e-9:
+            return f"inertia: J_min/J_max = {cf.x[3:6].min():.3g} below the model's range ({rlo:g})", cf
+        if float(cf.x[6:9].min()) < d.get("torque_ratio_min", 1.0) - 1e-9:
+            return f"torque_max: u_min/u_max = {cf.x[6:9].min():.3g} below the model's range", cf
+        ha = [c.half_angle for c in problem.cones]
+        alo, ahi = d.get("cone_half_angle_deg", (0.0, 90.0))
+        if min(ha) < math.radians(alo) - 1e-9 or max(ha) > math.radians(ahi) + 1e-9:
+            return f"cones: half angles outside the model's range [{alo:g}°, {ahi:g}°]", cf
+        return None, cf
+
+    def predict_canonical(self, x, T_ref):
+        """``(z', T, touch probabilities, touch instants, multipliers, first-arc signs, switch
+        instants per axis)``, canonical and nondimensional (cone quantities per slot)."""
+        out = self.forward(x)[0].astype(np.float64)
+        L, K = self.layout, self.K
+        z = out[slice(*L["z"])]
+        z = z / max(float(np.linalg.norm(z)), 1e-12)
+        T = float(T_ref * math.exp(out[L["log_T_ratio"][0]]))
+        p = 1.0 / (1.0 + np.exp(-out[slice(*L["touch_logit"])]))
+        tc = T / (1.0 + np.exp(-out[slice(*L["touch_time_logit"])]))
+        nu = np.exp(np.clip(out[slice(*L["log_nu"])], -20.0, 5.0))
+        uf = np.where(out[slice(*L["u_first_logit"])] >= 0.0, 1.0, -1.0)
+        cl = out[slice(*L["count_logits"])].reshape(3, K + 1)
+        tl = out[slice(*L["times_logit"])].reshape(3, K)
+        sw = [np.sort(T / (1.0 + np.exp(-tl[i, :int(np.argmax(cl[i]))]))) for i in range(3)]
+        return z, T, p, tc, nu, uf, sw
+
+    def guess_or_reason(self, problem, propagate=True):
+        problem = SlewProblem.from_dict(problem)
+        t0 = time.perf_counter()
+        why, cf = self._coverage(problem)
+        if why:
+            return None, why
+        z, T, p, tc, nu, uf_c, sw_c = self.predict_canonical(cf.x, cf.T_ref)
+        c0 = costate_from_canonical(problem, cf, z)
+        tf = T * cf.tau
+        # canonical axis i is body axis order[i]; first-arc signs are axial body vectors
+        sw = [None] * 3
+        for i, j in enumerate(cf.order):
+            sw[j] = sw_c[i] * cf.tau
+        uf = cf.axial.T @ uf_c
+        self.last_inference_s = time.perf_counter() - t0
+        used = [k for k in range(len(problem.cones))]
+        # slot k of the canonical form holds problem cone cf.slots[k]; the multiplier in the
+        # scale of c0 (nondimensional norm 1) and problem units is ν τ
+        rows = {k: (cf.slots[k], float(tc[k] * cf.tau), float(nu[k] * cf.tau)) for k in used}
+        touched = [k for k in used if p[k] >= 0.5]
+        no_touch = Guess(c0, tf, sw, uf, source="learned")
+        if touched:
+            g = Guess(c0, tf, sw, uf, source="learned", touches=[rows[k] for k in touched])
+            g.candidates.append(no_touch)
+        else:
+            g = no_touch
+            best = max(used, key=lambda k: p[k])
+            if p[best] >= SECOND_TOUCH_PROB:
+                g.candidates.append(Guess(c0, tf, sw, uf, source="learned-touch", touches=[rows[best]]))
+        g.touch_probabilities = {int(cf.slots[k]): float(p[k]) for k in used}
+        return g, None

@@ -1,0 +1,215 @@
+"""Learned warm start for pointing-only slews with keep-out cones: canonical form, model files,
+the guess, solve() with a cone model (learned route and fallback), training."""
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from slew_env import SlewProblem
+from slew_env.core.quaternion import qmul
+from solvers import Guess, solve
+from solvers.warmstart import ModelFileError, WarmStartModel, load_model
+from solvers.warmstart.cone_features import (N_CONE_FEATURES, cone_canonical_form, costate_from_canonical,
+                                             costate_to_canonical)
+from solvers.warmstart.cone_model import ConeWarmStartModel, cone_output_size
+
+from test_cone_touch import TOUCH, rough_answer_guess
+
+DATA = os.path.join(os.path.dirname(__file__), "data", "pointing-cones-small.jsonl")
+
+
+def _quat_of_matrix(R):
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
+
+
+def _rotate_scene(p, R):
+    """The same problem seen from another inertial frame (``R``: a rotation matrix)."""
+    cones = [{"axis": R @ c.axis, "half_angle": c.half_angle} for c in p.cones]
+    return p.replace(q0=qmul(_quat_of_matrix(R), p.q0), sensor_target=R @ p.sensor_target, cones=cones)
+
+
+def _relabel_body(p, P):
+    """The same problem with the body axes relabelled by the proper signed permutation ``P``."""
+    return p.replace(inertia=np.abs(P) @ p.inertia, torque_max=np.abs(P) @ p.torque_max, sensor_axis=P @ p.sensor_axis,
+                     q0=qmul(p.q0, _quat_of_matrix(P.T)))
+
+
+# --------------------------------------------------------------------------- canonical form
+def test_cone_canonical_form_ignores_the_inertial_frame():
+    R = Rotation.from_rotvec([0.4, -1.1, 0.7]).as_matrix()
+    np.testing.assert_allclose(cone_canonical_form(TOUCH).x, cone_canonical_form(_rotate_scene(TOUCH, R)).x,
+                               atol=1e-12)
+
+
+def test_cone_canonical_form_ignores_the_labelling_of_body_axes():
+    """Sensor along body y or -z instead of x, inertia permuted to match: the same slew."""
+    base = cone_canonical_form(TOUCH).x
+    for P in (np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 0], [0, 0, 1], [1, 0, 0]], float),
+              np.array([[1, 0, 0], [0, -1, 0], [0, 0, -1]], float)):
+        q = _relabel_body(TOUCH, P)
+        np.testing.assert_allclose(cone_canonical_form(q).x, base, atol=1e-12)
+
+
+def _mirror(p, P):
+    """The mirror image of a slew: inertial and body frames reflected together by ``P``."""
+    R0 = Rotation.from_quat(np.roll(p.q0, -1)).as_matrix()
+    return p.replace(q0=_quat_of_matrix(P @ R0 @ P), sensor_target=P @ p.sensor_target,
+                     cones=[{"axis": P @ c.axis, "half_angle": c.half_angle} for c in p.cones])
+
+
+def test_mirror_images_share_the_canonical_form_and_the_canonical_solution(touch_answer):
+    """A reflected slew is flown in the same time with the reflected torques: the canonical form
+    (which may use a reflection) maps both onto one problem and both answers onto one."""
+    P = np.diag([1.0, -1.0, 1.0])
+    M = _mirror(TOUCH, P)
+    a, b = cone_canonical_form(TOUCH), cone_canonical_form(M)
+    np.testing.assert_allclose(a.x, b.x, atol=1e-12)
+    assert round(np.linalg.det(a.A) * np.linalg.det(b.A)) == -1     # one of the two maps is a reflection
+    sol = solve(M, method="indirect", warm_start=None)
+    assert sol.success and sol.exact
+    assert sol.tf == pytest.approx(touch_answer.tf, rel=1e-9)
+    np.testing.assert_allclose(costate_to_canonical(M, b, sol.costate0)[0],
+                               costate_to_canonical(TOUCH, a, touch_answer.costate0)[0], atol=1e-6)
+    np.testing.assert_array_equal(b.axial @ sol.u_first, a.axial @ touch_answer.u_first)
+
+
+def test_cone_slots_are_ordered_by_how_much_the_cone_blocks_the_short_path():
+    cf = cone_canonical_form(TOUCH)
+    assert sorted(cf.slots) == [0, 1, 2] and cf.x.shape == (N_CONE_FEATURES,)
+    assert list(cf.x[9 + 4::5]) == [1.0, 1.0, 1.0]            # three cones present
+    shuffled = TOUCH.replace(cones=[TOUCH.cones[2], TOUCH.cones[0], TOUCH.cones[1]])
+    np.testing.assert_allclose(cone_canonical_form(shuffled).x, cf.x, atol=1e-12)
+    one = cone_canonical_form(TOUCH.replace(cones=TOUCH.cones[:1]))
+    assert list(one.x[9 + 4::5]) == [1.0, 0.0, 0.0] and not one.x[14:].any()
+
+
+def test_costates_round_trip_through_the_canonical_form():
+    c = np.array([0.3, -0.2, 0.5, 0.1, 0.7, -0.4, 0.2])
+    c[:4] -= (c[:4] @ TOUCH.q0) * TOUCH.q0                   # in the gauge λq(0) ⊥ q(0)
+    cf = cone_canonical_form(TOUCH)
+    z, nz = costate_to_canonical(TOUCH, cf, c)
+    assert np.linalg.norm(z) == pytest.approx(1.0)
+    np.testing.assert_allclose(costate_from_canonical(TOUCH, cf, z * nz), c, atol=1e-12)
+
+
+def test_problems_without_a_cone_canonical_form_say_why():
+    with pytest.raises(ValueError, match="qf: the pointing-cones form is for pointing-only targets"):
+        cone_canonical_form(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=[1.0, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="sensor_axis: the canonical form needs the sensor along a body axis"):
+        cone_canonical_form(TOUCH.replace(sensor_axis=[1.0, 1.0, 0.0]))
+
+
+# --------------------------------------------------------------------------- model files
+def _random_model(seed=0, K=5, domain=None):
+    rng = np.random.default_rng(seed)
+    n_out = cone_output_size(K)
+    weights = [(rng.normal(size=(N_CONE_FEATURES, 16)) * 0.3, np.zeros(16)), (rng.normal(size=(16, n_out)) * 0.3,
+                                                                              np.zeros(n_out))]
+    card = {"name": "random cone model", "max_switches": K, "activation": "tanh",
+            "domain": domain if domain is not None else {"n_cones": [1, 3], "angle_deg": [0.0, 180.0]}}
+    return ConeWarmStartModel(weights, np.zeros(N_CONE_FEATURES), np.ones(N_CONE_FEATURES), card)
+
+
+def test_cone_model_file_round_trip_and_kind(tmp_path):
+    m = _random_model()
+    path = tmp_path / "cones.npz"
+    m.save(path)
+    back = load_model(path)
+    assert isinstance(back, ConeWarmStartModel) and back.card["kind"] == "pointing-cones"
+    x = cone_canonical_form(TOUCH).x
+    np.testing.assert_allclose(back.forward(x), m.forward(x), atol=1e-6)
+
+
+def test_cone_model_of_the_wrong_shape_is_refused():
+    m = _random_model()
+    with pytest.raises(ModelFileError, match="outputs of a pointing-cones model"):
+        ConeWarmStartModel(m.weights[:1], m.x_mean, m.x_std, dict(m.card))
+
+
+def test_cone_model_guess_maps_slots_back_to_the_problem_cones():
+    m = _random_model()
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None and isinstance(g, Guess)
+    assert len(g.switch_times) == 3 and g.u_first is not None
+    for c, t, nu in (g.touches or []):
+        assert c in (0, 1, 2) and 0.0 < t < g.tf and nu > 0.0
+    assert set(g.touch_probabilities) == {0, 1, 2}
+    # the same problem with its cones listed in another order: the same touches, renumbered
+    order = [2, 0, 1]
+    g2, _ = m.guess_or_reason(TOUCH.replace(cones=[TOUCH.cones[i] for i in order]))
+    assert {order[c] for c, _, _ in (g2.touches or [])} == {c for c, _, _ in (g.touches or [])}
+    assert g2.tf == pytest.approx(g.tf)
+
+
+def test_cone_model_coverage_reasons():
+    m = _random_model(domain={"n_cones": [1, 3], "angle_deg": [0.0, 180.0], "cone_half_angle_deg": [10.0, 30.0]})
+    assert "qf" in m.covers(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=[1.0, 0.0, 0.0, 0.0]))
+    far = np.cross(TOUCH.start_direction, TOUCH.target_direction)   # 90° from the start and the target
+    assert "half angles outside" in m.covers(TOUCH.replace(cones=[{"axis": far, "half_angle_deg": 40.0}]))
+    assert "the model covers 1–3 cones" in m.covers(TOUCH.replace(cones=[]))
+    assert m.covers(TOUCH) is None
+
+
+# --------------------------------------------------------------------------- solve() with a cone model
+class _AnswerModel:
+    """A stand-in for a well-trained model: the exact answer, perturbed (costates 8° off, tf
+    +1.5 %, switch and touch instants ±2 %, multiplier x0.8)."""
+    name = "answer model"
+
+    def __init__(self, sol):
+        self.sol = sol
+
+    def covers(self, problem):
+        return None
+
+    def guess(self, problem):
+        return rough_answer_guess(self.sol, 8.0, 0.015, 0.02, 0.8, seed=5, source="learned")
+
+
+@pytest.fixture(scope="module")
+def touch_answer():
+    sol = solve(TOUCH, method="indirect", warm_start=None)
+    assert sol.success and sol.exact and sol.verification.get("touch_multipliers")
+    return sol
+
+
+def test_solve_takes_the_learned_touch_route_without_collocation(touch_answer):
+    sol = solve(TOUCH, warm_start=_AnswerModel(touch_answer))
+    assert sol.success and sol.exact, sol.message
+    assert sol.route.startswith("learned guess (answer model)") and "touch-point junctions (1)" in sol.route
+    assert sol.warm_start["succeeded"] and sol.warm_start["covered"]
+    assert sol.tf == pytest.approx(touch_answer.tf, rel=1e-9)
+    assert sol.verification["cone_clearance"]["passed"] and sol.verification["replay"]["passed"]
+
+
+def test_a_failing_cone_guess_falls_back_to_the_collocation_route():
+    m = _random_model(seed=3)
+    sol = solve(TOUCH, warm_start=m)
+    assert sol.success, sol.message
+    assert sol.warm_start["covered"] and not sol.warm_start["succeeded"]
+    assert "learned guess failed" in sol.route and "collocation" in sol.route
+
+
+# --------------------------------------------------------------------------- training
+def test_cone_training_arrays_and_a_short_training_run(tmp_path):
+    pytest.importorskip("torch")
+    from training.warmstart.cone_data import training_arrays
+    from training.warmstart.train import train
+    a = training_arrays(DATA)
+    assert a["n_records"] == 60 and a["X"].shape == (a["Z"].shape[0], N_CONE_FEATURES)
+    assert 20 <= a["X"].shape[0] <= a["n_exact"]
+    touched = a["touch"].sum(axis=1) > 0
+    assert touched.any() and (~touched).any()
+    assert np.all(np.isfinite(a["frac"][a["touch"] > 0])) and np.all(np.isnan(a["frac"][a["touch"] == 0]))
+    assert np.all((a["frac"][a["touch"] > 0] > 0) & (a["frac"][a["touch"] > 0] < 1))
+    s = train([DATA], tmp_path / "run", config="training/warmstart/configs/pointing-cones.yaml", seed=0, epochs=3,
+              progress_bar=False)
+    m = WarmStartModel.load(s["model"])
+    assert isinstance(m, ConeWarmStartModel) and m.covers(TOUCH) is None
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None and g.tf > 0
+    assert json.loads(open(tmp_path / "run" / "summary.json").read())["n_exact_solutions"] == a["X"].shape[0]

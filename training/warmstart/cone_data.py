@@ -1,0 +1,127 @@
+"""Pointing-cones dataset records → canonical training arrays, and the network's losses.
+
+Only *exact* successes are used: extremals that clear the cones without touching them, and
+touch-point extremals (``solvers.cone_touch``, whose ``verification["touch_multipliers"]``
+gives the instants, cones and multipliers). Collocation answers (boundary arcs, singular
+problems) have costates known only approximately and are left out, as are the rare answers
+touching one cone twice (one slot holds one touch), counted in ``n_double``.
+
+Arrays (``N`` problems, ``C = MAX_CONES`` slots): ``X`` (N, 24) features; ``Z`` (N, 6)
+canonical costates; ``T``, ``T_ref``, ``log_T_ratio`` (N,); ``touch`` (N, C) 0/1; ``frac``
+(N, C) touch instant / T (NaN where no touch); ``log_nu`` (N, C) (NaN where no touch);
+``present`` (N, C) cone in the slot; ``key`` (N,).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slew_env import SlewProblem
+from solvers.warmstart.cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form,
+                                             costate_to_canonical)
+from solvers.warmstart.cone_model import cone_output_layout, cone_output_size
+from .data import exact_records
+
+N_IN = N_CONE_FEATURES
+
+
+def training_arrays(paths, family="pointing-cones", max_switches=5) -> dict:
+    rows = []
+    n_double = n_overflow = 0
+    counts = {}
+    for path, r in exact_records(paths, family, counts):
+        p = SlewProblem.from_dict(r["problem"])
+        cf = cone_canonical_form(p)
+        z, nz = costate_to_canonical(p, cf, r["costate0"])
+        T = float(r["tf"]) / cf.tau
+        tm = (r.get("verification") or {}).get("touch_multipliers")
+        touch = np.zeros(MAX_CONES)
+        frac = np.full(MAX_CONES, np.nan)
+        lnu = np.full(MAX_CONES, np.nan)
+        if tm:
+            if len(set(tm["cones"])) < len(tm["cones"]):
+                n_double += 1
+                continue
+            slot_of = {c: k for k, c in enumerate(cf.slots)}
+            for c, t, m in zip(tm["cones"], tm["times"], tm["multipliers"]):
+                k = slot_of[int(c)]
+                touch[k] = 1.0
+                frac[k] = float(t) / float(r["tf"])
+                # multiplier in the normalisation of z': ν = m / (τ |z_raw|)
+                lnu[k] = math.log(max(float(m) / (cf.tau * nz), 1e-12))
+        present = cf.x[9 + 4::5][:MAX_CONES].copy()
+        # switching structure in canonical axes (canonical axis i is body axis order[i])
+        sw = [np.sort(np.asarray(r["switch_times"][j], float)) / cf.tau for j in cf.order]
+        if max(len(a) for a in sw) > max_switches:
+            n_overflow += 1
+            continue
+        U = np.where(cf.axial @ np.asarray(r["u_first"], float) >= 0, 1.0, -1.0)
+        S = np.full((3, max_switches), np.nan)
+        for i in range(3):
+            S[i, :len(sw[i])] = sw[i] / T
+        n_sw = np.array([len(a) for a in sw])
+        rows.append((cf.x, z, T, cf.T_ref, touch, frac, lnu, present, f"{path}:{r['index']}", U, n_sw, S))
+    N = len(rows)
+    out = {"X": np.array([r[0] for r in rows]).reshape(N, N_IN), "Z": np.array([r[1] for r in rows]).reshape(N, 6),
+           "T": np.array([r[2] for r in rows]), "T_ref": np.array([r[3] for r in rows]),
+           "touch": np.array([r[4] for r in rows]).reshape(N, MAX_CONES),
+           "frac": np.array([r[5] for r in rows]).reshape(N, MAX_CONES),
+           "log_nu": np.array([r[6] for r in rows]).reshape(N, MAX_CONES),
+           "present": np.array([r[7] for r in rows]).reshape(N, MAX_CONES), "key": np.array([r[8] for r in rows]),
+           "U": np.array([r[9] for r in rows]).reshape(N, 3),
+           "counts": np.array([r[10] for r in rows], dtype=np.int64).reshape(N, 3),
+           "F": np.array([r[11] for r in rows]).reshape(N, 3, max_switches)}
+    out["log_T_ratio"] = np.log(out["T"] / np.maximum(out["T_ref"], 1e-300))
+    out.update(n_records=counts["seen"], n_exact=counts["exact"], n_double=n_double, n_overflow=n_overflow)
+    return out
+
+
+TENSOR_KEYS = {"X": "float", "Z": "float", "log_T_ratio": "float", "touch": "float", "frac": "float",
+               "log_nu": "float", "present": "float", "U": "float", "counts": "long", "F": "float"}
+
+
+def losses(out, batch, cfg, torch):
+    """Total loss, its parts and validation metrics (see ``training.warmstart.train``)."""
+    F = torch.nn.functional
+    K = int(cfg["max_switches"])
+    L = cone_output_layout(K)
+    z = out[:, slice(*L["z"])]
+    nz = z.norm(dim=1, keepdim=True).clamp_min(1e-8)
+    l_z = ((z / nz - batch["Z"]) ** 2).sum(dim=1).mean() + 0.01 * ((nz - 1.0) ** 2).mean()
+    l_T = ((out[:, L["log_T_ratio"][0]] - batch["log_T_ratio"]) ** 2).mean()
+    pres = batch["present"]
+    logit = out[:, slice(*L["touch_logit"])]
+    l_p = (F.binary_cross_entropy_with_logits(logit, batch["touch"], reduction="none") * pres).sum() / pres.sum()
+    mask = torch.isfinite(batch["frac"])
+    n_m = mask.sum().clamp_min(1)
+    tf_ = torch.sigmoid(out[:, slice(*L["touch_time_logit"])])
+    l_t = (((tf_ - torch.where(mask, batch["frac"], torch.zeros_like(tf_))) ** 2) * mask).sum() / n_m
+    lnu = out[:, slice(*L["log_nu"])]
+    l_nu = (((lnu - torch.where(mask, batch["log_nu"], torch.zeros_like(lnu))) ** 2) * mask).sum() / n_m
+    l_u = F.binary_cross_entropy_with_logits(out[:, slice(*L["u_first_logit"])], (batch["U"] > 0).float())
+    cl = out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1)
+    l_c = F.cross_entropy(cl.reshape(-1, K + 1), batch["counts"].reshape(-1))
+    sl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
+    smask = torch.isfinite(batch["F"])
+    l_s = (((sl - torch.where(smask, batch["F"], torch.zeros_like(sl))) ** 2) * smask).sum() / smask.sum().clamp_min(1)
+    w = cfg.get("loss_weights", {})
+    total = (w.get("z", 1.0) * l_z + w.get("log_T", 4.0) * l_T + w.get("touch", 0.2) * l_p
+             + w.get("touch_times", 2.0) * l_t + w.get("log_nu", 0.1) * l_nu + w.get("u_first", 0.2) * l_u
+             + w.get("counts", 0.2) * l_c + w.get("times", 2.0) * l_s)
+    with torch.no_grad():
+        cos = ((z / nz) * batch["Z"]).sum(dim=1)
+        pred = (logit >= 0).float()
+        same = ((pred == batch["touch"]) | (pres == 0)).all(dim=1).float().mean()
+        metrics = {
+            "z_angle_deg_median": float(torch.rad2deg(torch.arccos(cos.clamp(-1, 1))).median()),
+            "T_rel_err_median": float((out[:, L["log_T_ratio"][0]] - batch["log_T_ratio"]).abs().median()),
+            "touch_set_acc": float(same),
+            "touch_time_err_median": float((tf_ - batch["frac"])[mask].abs().median()) if bool(mask.any()) else math.nan,
+            "u_first_acc": float(((out[:, slice(*L["u_first_logit"])] >= 0) == (batch["U"] > 0)).all(dim=1).float().mean()),
+            "structure_acc": float((cl.argmax(dim=2) == batch["counts"]).all(dim=1).float().mean()),
+            "switch_time_err_median": float((sl - batch["F"])[smask].abs().median()) if bool(smask.any()) else math.nan,
+        }
+    parts = {k: float(v.detach()) for k, v in (("z", l_z), ("log_T", l_T), ("touch", l_p), ("touch_times", l_t),
+                                                ("log_nu", l_nu), ("u_first", l_u), ("counts", l_c), ("times", l_s))}
+    return total, parts, metrics
