@@ -44,6 +44,7 @@ import numpy as np
 from slew_env.core.cones import perpendicular_basis
 from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
 from .core import attitude_flow as af
+from .core.pointing import pointing_terminal
 
 NY = af.NY
 
@@ -225,32 +226,9 @@ class AttitudeBVP:
         return r, d, np.zeros(6)
 
     def _terminal_pointing(self, y):
-        """Pointing (2), roll transversality (1) and rate (3) residuals with their gradients."""
-        q0, v = y[0], y[1:4]
-        l0, lv = y[7], y[8:11]
-        d, sb = self.d_i, self.s_b
-        # d_b = R(q)ᵀ d = (q0² - v·v) d + 2 v (v·d) - 2 q0 (v × d)
-        vd = float(v @ d)
-        db = (q0 * q0 - v @ v) * d + 2.0 * v * vd - 2.0 * q0 * np.cross(v, d)
-        ddb = np.empty((3, 4))
-        ddb[:, 0] = 2.0 * q0 * d - 2.0 * np.cross(v, d)
-        for j in range(3):
-            ej = np.zeros(3)
-            ej[j] = 1.0
-            ddb[:, 1 + j] = -2.0 * v[j] * d + 2.0 * ej * vd + 2.0 * v * d[j] - 2.0 * q0 * np.cross(ej, d)
-        r = np.empty(6)
-        D = np.zeros((6, NY))
-        r[0:2] = self._e @ db
-        D[0:2, 0:4] = self._e @ ddb
-        # Im(q* ⊗ λq) · s with Im(q* ⊗ λq) = q0 lv - l0 v - v × lv
-        im = q0 * lv - l0 * v - np.cross(v, lv)
-        r[2] = float(im @ sb)
-        D[2, 0] = float(lv @ sb)
-        D[2, 1:4] = -l0 * sb - np.cross(lv, sb)
-        D[2, 7] = -float(v @ sb)
-        D[2, 8:11] = q0 * sb - np.cross(sb, v)
-        r[3:6] = y[4:7] - self.wf
-        D[3:6, 4:7] = np.eye(3)
+        """Pointing (2), roll transversality (1) and rate (3) residuals with their gradients
+        (``core.pointing.pointing_terminal``)."""
+        r, D = pointing_terminal(y, self.d_i, self.s_b, self._e, self.wf)
         return r, D, np.zeros(6)
 
     def pointing_error(self, q):

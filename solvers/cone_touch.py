@@ -31,18 +31,19 @@ import numpy as np
 
 from slew_env.core.quaternion import qmul
 from .attitude_bvp import AttitudeBVP, NY, Trajectory, quat_left_matrix
-from .clearance import CLEARANCE_TOL, cone_clearances, cone_margins
+from .clearance import CLEARANCE_TOL, certified_replay, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
 from .indirect import solution_fields
 from .guesses import Guess
-from .switch_time import Structure, advance, switch_event
-from .verify import DEFAULT_TOLS, extremal_checks, failure_text, make_check, rate_limit_check, replay_path
+from .switch_time import Structure, advance, structure_from_trajectory, switch_event
+from .verify import DEFAULT_TOLS, extremal_checks, failure_text, make_check, rate_limit_check
 
 NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a contact
 ARC_MARGIN = 1e-4         # rad: a contact that stays this close over 5 % of tf is a boundary arc
 SMOOTHING_PATH = (2e-2, 1e-2, 5e-3, 2e-3, 1e-3)
+STRUCTURE_REPAIRS = 3     # re-solves of the switch-time problem with the structure its answer shows
 
 
 class TouchBVP(AttitudeBVP):
@@ -215,10 +216,54 @@ def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
     return r, Jm
 
 
+def _fixed_structure_switching(tp, x, times, st, per_arc=24):
+    """``(t, S)``: the switching functions ``S_i = λω_i / J_i`` sampled along the path of the
+    fixed structure ``st`` with switch instants ``times`` (``x`` as ``TouchProblem`` takes it),
+    with the costate jump at each touch; ``None`` if the propagation fails."""
+    bvp = tp.bvp
+    z, T, tc, nu = tp.unpack(x)
+    y, _ = bvp.initial(z)
+    signs = st.signs0.astype(float).copy()
+    events = sorted([(float(times[j]), 0, j) for j in range(st.n)] + [(float(tc[k]), 1, k) for k in range(tp.K)])
+    ts, Ss = [np.zeros(1)], [(y[11:14] / bvp.J)[None, :]]
+    t_prev = 0.0
+    for t_next, kind, j in events + [(T, 2, -1)]:
+        dt = t_next - t_prev
+        if dt > 0.0:
+            Y, _, n_rec, _, _, status, rt, rY, *_ = bvp._run(y, dt, None, signs0=signs, record=4 * per_arc,
+                                                             detect=False, hmax=dt / per_arc)
+            if status != af.FLOW_OK:
+                return None
+            ts.append(rt[1:n_rec] + t_prev)
+            Ss.append(rY[1:n_rec, 11:14] / bvp.J)
+            y = Y[:NY].copy()
+        t_prev = max(t_prev, t_next)
+        if kind == 0:
+            a = int(st.axes[j])
+            signs[a] = -signs[a]
+        elif kind == 1:
+            y[7:11] -= 2.0 * nu[j] * (tp.M[j] @ y[0:4])
+    return np.concatenate(ts), np.vstack(Ss)
+
+
+def repaired_structure(tp, x, times, st):
+    """The structure the switching functions of a fixed-structure solution actually have (their
+    sign changes along its path), or ``None`` if it is ``st`` itself: a wrong guess of the
+    structure (a switch missing where a switching function crosses zero, or one too many)
+    shows up as a mismatch, and the next solve starts from the corrected one."""
+    path = _fixed_structure_switching(tp, x, times, st)
+    if path is None:
+        return None
+    new = structure_from_trajectory(*path)
+    same = (np.array_equal(new.signs0, st.signs0) and new.n == st.n
+            and np.array_equal(new.axes, st.axes[np.argsort(times, kind="stable")]))
+    return None if same else new
+
+
 def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3):
     """Newton with a line search on ``_structured_residual``: ``(x, converged, nit, nfev,
-    residual)`` with ``x = [z, T, touch instants, multipliers]`` as ``TouchProblem`` takes it
-    (the structure is then re-derived by event-driven propagation in the verification)."""
+    residual, switch instants)`` with ``x = [z, T, touch instants, multipliers]`` as
+    ``TouchProblem`` takes it (the event-driven Newton then checks the structure)."""
     n, K = st.n, tp.K
     x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)],
                         np.asarray(tc0, float), np.asarray(nu0, float)])
@@ -231,19 +276,19 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         return T > 0.0 and np.all(tt >= 0.0) and np.all(tt <= T) and np.all(tc > 0.0) and np.all(tc < T)
 
     def pack(x):
-        z, _, T, tc, nu = split(x)
-        return np.concatenate([z, [T], tc, nu])
+        z, tt, T, tc, nu = split(x)
+        return np.concatenate([z, [T], tc, nu]), tt.copy()
 
     r, Jm = _structured_residual(tp, *split(x), st, True)
     nfev = 1
     if r is None:
-        return pack(x), False, 0, nfev, math.inf
+        return pack(x)[0], False, 0, nfev, math.inf, pack(x)[1]
     scale = np.concatenate([np.ones(6), np.full(n + 1 + K, max(float(T0), 1e-3)), np.maximum(np.abs(nu0), 1.0)])
     phi = float(r @ r)
     for it in range(max_iter):
         rn = float(np.max(np.abs(r)))
         if rn < tol:
-            return pack(x), True, it, nfev, rn
+            return pack(x)[0], True, it, nfev, rn, pack(x)[1]
         dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]
         big = float(np.max(np.abs(dx) / scale))
         if big > max_step:
@@ -259,11 +304,11 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
                     break
             alpha *= 0.5
         if not accepted:
-            return pack(x), False, it, nfev, rn
+            return pack(x)[0], False, it, nfev, rn, pack(x)[1]
         x, r, Jm = xt, rt, Jt
         phi = float(r @ r)
     rn = float(np.max(np.abs(r)))
-    return pack(x), rn < tol, max_iter, nfev, rn
+    return pack(x)[0], rn < tol, max_iter, nfev, rn, pack(x)[1]
 
 
 def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3):
@@ -424,16 +469,31 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     nu = [m / (tau * nz) for _, _, m in guess.touches]
     x0 = np.concatenate([z / nz, [float(guess.tf) / tau], tc, nu])
     ok, nit, nfev, rn = False, 0, 0, math.inf
+    starts = [x0]
     st = _structure_of(guess, tau)
     if st is not None:
         # the switch-time formulation first: smooth in its unknowns, so a guess with the right
-        # structure converges from further away than the event-driven Newton below
-        x, ok, nit, nfev, rn = structured_newton(tp, z / nz, st, x0[6], tc, nu)
-        if ok:
-            x0 = x
-    if not ok:
-        x, ok, n1, n2, rn = newton(tp, x0)
+        # structure converges from further away than the event-driven Newton below. Its answer
+        # is an extremal only if the structure was right (no switching function crosses zero
+        # where the structure has no switch): the event-driven Newton starts from it, and
+        # converges at once if so
+        zs, Ts, tcs, nus = z / nz, x0[6], tc, nu
+        for _ in range(STRUCTURE_REPAIRS + 1):
+            xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus)
+            nit, nfev = nit + n1, nfev + n2
+            if not ok_s:
+                break
+            fixed = repaired_structure(tp, xs_, times, st)
+            if fixed is None:
+                starts.insert(0, xs_)
+                break
+            st = fixed
+            zs, Ts, tcs, nus = tp.unpack(xs_)
+    for xstart in starts:
+        x, ok, n1, n2, rn = newton(tp, xstart)
         nit, nfev = nit + n1, nfev + n2
+        if ok:
+            break
     if not ok and smoothing:
         # the smoothed control law (tanh(S/ε), a homotopy only) makes the residual smooth
         # where a switch appears or vanishes near the guess; follow ε down, then solve the
@@ -508,12 +568,9 @@ def _verify(tp, x, problem, source, reference, tols):
     switch_times = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
     # independent replay of the switch times alone (the environment's RK4), with the
     # clearance certified on it at every instant
-    t_rep, x_rep = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, switch_times,
-                               tr.signs0, T * tau, steps_per_tf=20000)
+    t_rep, x_rep, cert = certified_replay(problem, switch_times, tr.signs0, T * tau)
     rep = max(bvp.attitude_error(x_rep[-1, 0:4]), float(np.linalg.norm(x_rep[-1, 4:7] * tau - bvp.wf)))
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
-    per = cone_clearances(problem, t_rep, x_rep[:, 0:4], x_rep[:, 4:7])
-    cert = min(p[1] for p in per)
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
     checks.update(rate_limit_check(bvp, tr.y, tols))
     if reference is not None:

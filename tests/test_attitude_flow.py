@@ -101,3 +101,50 @@ def test_hamiltonian_is_conserved_across_switches():
     H = [af.hamiltonian(rec_Y[k], J, UMAX, af.MODE_BANG, 0.0, 1.0, rec_s[k]) for k in range(n_rec)]
     assert n_sw >= 2
     assert np.max(np.abs(np.array(H) - H[0])) < 1e-10
+
+
+# a pointing-cones extremal whose first axis has a pulse (two switches 0.039 T apart) shorter
+# than the adaptive step: the end-of-step sign check alone misses both switches
+PULSE_Y0 = np.array([0.10972301988678053, -0.914365579306258, 0.3839374322092109, -0.06699622702402173, 0.0, 0.0, 0.0,
+                     -0.2484589234190229, 0.26902235105902833, 0.6196956218529638, -0.5272251443292697,
+                     -0.0008089043019391267, 0.3486400130060751, 0.2869766688292576])
+PULSE_J = np.array([1.0, 0.7183438267246143, 0.5428235650429168])
+
+
+def _pulse_flow(m, hmax=np.inf, rtol=1e-10):
+    Y0 = np.zeros(14 + 14 * m)
+    Y0[:14] = PULSE_Y0
+    if m:
+        Y0[14:] = np.eye(14)[:, :m].ravel()
+    sw_t = np.zeros(50)
+    sw_a = np.zeros(50, dtype=np.int64)
+    out = af.flow(Y0, 0.6997750876550235, m, PULSE_J, np.ones(3), af.MODE_BANG, 0.0, 1.0, np.array([1.0, -1.0, -1.0]),
+                  rtol, rtol, 0.05, 100000, 40, np.zeros(0), np.zeros((0, 14)), np.zeros((0, 3)), sw_t, sw_a,
+                  NO_PENALTY, True, hmax)
+    return out, sw_t[:out[3]], sw_a[:out[3]]
+
+
+def test_a_pulse_shorter_than_the_step_is_found():
+    (Y, s_end, _, n_sw, _, status), sw_t, sw_a = _pulse_flow(0)
+    (Y_ref, s_ref, _, n_ref, _, _), t_ref, a_ref = _pulse_flow(0, hmax=1e-3)   # steps far shorter than the pulse
+    assert status == af.FLOW_OK
+    assert n_sw == n_ref == 2 and list(sw_a) == list(a_ref) == [0, 0]
+    np.testing.assert_allclose(sw_t, t_ref, atol=1e-11)
+    assert 0.03 < sw_t[1] - sw_t[0] < 0.1
+    np.testing.assert_array_equal(s_end, s_ref)
+    np.testing.assert_allclose(Y[:14], Y_ref[:14], atol=1e-8)
+
+
+def test_pulse_sensitivities_match_finite_differences():
+    (Y, *_), _, _ = _pulse_flow(14)
+    Phi = Y[14:].reshape(14, 14)
+    h = 1e-7
+    fd = np.empty((14, 14))
+    for k in range(14):
+        PULSE_Y0[k] += h
+        plus = _pulse_flow(0)[0][0].copy()
+        PULSE_Y0[k] -= 2 * h
+        minus = _pulse_flow(0)[0][0].copy()
+        PULSE_Y0[k] += h
+        fd[:, k] = (plus - minus) / (2 * h)
+    assert np.max(np.abs(Phi - fd)) < 1e-5 * max(1.0, np.max(np.abs(Phi)))

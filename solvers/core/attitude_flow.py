@@ -24,6 +24,8 @@ The integrator is Dormand–Prince 8(5,3) (the coefficients scipy's DOP853 uses)
 with error control on ``y`` only; the sensitivity matrix ``Φ = ∂y/∂(inputs)``
 (``m`` columns, ``m`` may be 0) rides along on the same steps.
 """
+import math
+
 import numpy as np
 from numba import njit
 from scipy.integrate._ivp import dop853_coefficients as _dop
@@ -393,6 +395,15 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
                     if tau < first_tau:
                         first_tau = tau
                         first_ax = i
+                else:
+                    # two crossings inside one step (a short pulse) leave the end sign right:
+                    # look for them on the Hermite cubic of S_i over the step
+                    tc = _hidden_crossing(Y, Ynew, K0, K[12], h, J, umax, signs, pen, i)
+                    if tc > 0.0:
+                        tau = _locate_switch(Y, tc, m, J, umax, signs, pen, K0, i)
+                        if tau < first_tau:
+                            first_tau = tau
+                            first_ax = i
             if first_ax >= 0:
                 if first_tau < h:
                     Ynew, K = _dop853_step(Y, first_tau, m, J, umax, mode, p, eps, signs, pen, K0)
@@ -441,6 +452,62 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
 
 
 @njit(cache=True)
+def _hidden_crossing(Y, Ynew, K0, K1, h, J, umax, signs, pen, axis):
+    """A step length ``τ`` in (0, h) at which ``S_axis`` has the wrong sign for the arc
+    (``signs·S > 0``) although both ends of the step have the right one, or 0.
+
+    Candidates are the extrema of the cubic Hermite interpolant of ``S_axis`` (values and
+    derivatives at both ends); a candidate counts only if an exact DOP853 step to it confirms
+    the wrong sign, so a crossing pair is never invented by the interpolant."""
+    sg = signs[axis]
+    s0 = sg * Y[11 + axis] / J[axis]
+    s1 = sg * Ynew[11 + axis] / J[axis]
+    d0 = sg * K0[11 + axis] / J[axis] * h
+    d1 = sg * K1[11 + axis] / J[axis] * h
+    # σS(θ) on θ ∈ [0, 1]: a θ³ + b θ² + d0 θ + s0
+    a = 2.0 * s0 + d0 - 2.0 * s1 + d1
+    b = -3.0 * s0 - 2.0 * d0 + 3.0 * s1 - d1
+    # a step that starts on a switch (S ≈ 0 to rounding) is not checked: the crossing at its
+    # start is the switch just taken
+    scale = max(max(abs(s0), abs(s1)), max(abs(d0), abs(d1)))
+    if not (s0 < -1e-10 * scale) or not (s1 < 0.0):
+        return 0.0
+    best = 0.0
+    best_v = 0.0
+    # extrema: 3a θ² + 2b θ + d0 = 0
+    A = 3.0 * a
+    B = 2.0 * b
+    C = d0
+    roots = np.empty(2)
+    nr = 0
+    if abs(A) < 1e-300:
+        if abs(B) > 1e-300:
+            roots[0] = -C / B
+            nr = 1
+    else:
+        disc = B * B - 4.0 * A * C
+        if disc >= 0.0:
+            sq = math.sqrt(disc)
+            roots[0] = (-B - sq) / (2.0 * A)
+            roots[1] = (-B + sq) / (2.0 * A)
+            nr = 2
+    for k in range(nr):
+        th = roots[k]
+        if th > 0.0 and th < 1.0:
+            v = ((a * th + b) * th + d0) * th + s0
+            if v > best_v:
+                best_v = v
+                best = th
+    if best_v <= 0.0:
+        return 0.0
+    Yc = Y[:NY].copy()
+    Yt, Kt = _dop853_step(Yc, best * h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0[:NY].copy())
+    if sg * Yt[11 + axis] / J[axis] > 0.0:
+        return best * h
+    return 0.0
+
+
+@njit(cache=True)
 def _locate_switch(Y, h, m, J, umax, signs, pen, K0, axis):
     """Step length τ in (0, h] at which ``S_axis`` crosses zero (Newton, bracketed).
 
@@ -456,10 +523,25 @@ def _locate_switch(Y, h, m, J, umax, signs, pen, K0, axis):
     # secant start from the end points
     Yh, Kh = _dop853_step(Yc, h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0c)
     s_hi = Yh[11 + axis] / J[axis]
+    sg = signs[axis]
+    if not (sg * s_lo < -1e-10 * abs(s_hi)):
+        # the step starts on a switch (S ≈ 0 to rounding): the crossing wanted is the next one,
+        # so the bracket starts where S is clearly on the arc's side
+        th = 0.5 * h
+        for _ in range(40):
+            Yt, Kt = _dop853_step(Yc, th, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0c)
+            st = Yt[11 + axis] / J[axis]
+            if sg * st < 0.0:
+                lo = th
+                s_lo = st
+                break
+            hi = th
+            s_hi = st
+            th *= 0.5
     if s_hi != s_lo:
-        tau = h * s_lo / (s_lo - s_hi)
-    if not (tau > 0.0 and tau < h):
-        tau = 0.5 * h
+        tau = lo + (hi - lo) * s_lo / (s_lo - s_hi)
+    if not (tau > lo and tau < hi):
+        tau = 0.5 * (lo + hi)
     for it in range(60):
         Yt, Kt = _dop853_step(Yc, tau, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0c)
         s = Yt[11 + axis] / J[axis]

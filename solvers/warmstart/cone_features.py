@@ -38,14 +38,12 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qconj, qmul, qrotate_inv
-from ..guesses import eigenaxis_acceleration
 
 MAX_CONES = 3
 CONE_SLOT = ("ax", "ay", "az", "half_angle", "present")
 CONE_FEATURE_NAMES = ("d1", "d2", "d3", "J1", "J2", "J3", "u1", "u2", "u3") + tuple(
     f"cone{k}_{n}" for k in range(MAX_CONES) for n in CONE_SLOT)
 N_CONE_FEATURES = len(CONE_FEATURE_NAMES)
-_ARC_SAMPLES = 33
 
 
 def _signed_permutations():
@@ -101,16 +99,31 @@ def cone_unsupported_reason(problem: SlewProblem) -> Optional[str]:
 def _arc_margin(a, half_angle, d):
     """Smallest angle from the cone ``(a, half_angle)`` boundary to the great circle from
     ``+x`` to ``d`` (negative when the arc enters the cone)."""
-    e1 = np.array([1.0, 0.0, 0.0])
-    c = float(np.clip(d[0], -1.0, 1.0))
+    c = min(1.0, max(-1.0, float(d[0])))
     th = math.acos(c)
-    perp = d - c * e1
-    n = np.linalg.norm(perp)
+    p1, p2 = float(d[1]), float(d[2])
+    n = math.hypot(p1, p2)
     # opposite target: every great circle is shortest; take the one through +z (deterministic)
-    perp = perp / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
-    s = np.linspace(0.0, th, _ARC_SAMPLES)
-    pts = np.cos(s)[:, None] * e1 + np.sin(s)[:, None] * perp
-    return float(np.min(np.arccos(np.clip(pts @ a, -1.0, 1.0)))) - half_angle
+    p1, p2 = (p1 / n, p2 / n) if n > 1e-9 else (0.0, 1.0)
+    # along the arc, cos angle(a, p(σ)) = a_x cos σ + a_⊥ sin σ = R cos(σ - φ), σ ∈ [0, θ]
+    ax, ap = float(a[0]), float(a[1]) * p1 + float(a[2]) * p2
+    phi = math.atan2(ap, ax)
+    best = math.hypot(ax, ap) if 0.0 <= phi <= th else max(ax, ax * c + ap * math.sin(th))
+    return math.acos(min(1.0, max(-1.0, best))) - half_angle
+
+
+def _candidates(s):
+    """The signed permutations ``A`` with ``A s = +x``, as ``(A, perm, signs)`` with
+    ``(A v)_i = signs[i] v[perm[i]]``."""
+    out = []
+    for A in _CUBE:
+        if (A @ s)[0] > 0.5:
+            perm = [int(np.argmax(np.abs(A[i]))) for i in range(3)]
+            out.append((A, perm, [float(A[i, perm[i]]) for i in range(3)]))
+    return out
+
+
+_CANDIDATES = {}
 
 
 def cone_canonical_form(problem) -> ConeCanonicalForm:
@@ -122,27 +135,29 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
         raise ValueError(why)
     s = np.asarray(problem.sensor_axis, float)
     s = s / np.linalg.norm(s)
+    key_s = (int(np.argmax(np.abs(s))), bool(s[np.argmax(np.abs(s))] > 0))
+    if key_s not in _CANDIDATES:
+        _CANDIDATES[key_s] = _candidates(s)
     Jmax = float(problem.inertia.max())
     umax = float(problem.torque_max.max())
-    d_body = qrotate_inv(np.asarray(problem.q0, float), np.asarray(problem.sensor_target, float))
+    q0 = np.asarray(problem.q0, float)
+    d_body = qrotate_inv(q0, np.asarray(problem.sensor_target, float)).tolist()
+    inertia = problem.inertia.tolist()
     best, key_best = None, None
-    for A in _CUBE:
-        if (A @ s)[0] < 0.5:
-            continue
-        J = np.abs(A) @ problem.inertia
-        d = A @ d_body
-        key = (round(float(J[1] - J[2]), 9), round(float(d[1]), 9), round(float(d[2]), 9))
+    for A, perm, sg in _CANDIDATES[key_s]:
+        key = (round(inertia[perm[1]] - inertia[perm[2]], 9), round(sg[1] * d_body[perm[1]], 9),
+               round(sg[2] * d_body[perm[2]], 9))
         if key_best is None or key > key_best:
             best, key_best = A, key
     A = best
-    d = A @ d_body
-    d = d / np.linalg.norm(d)
+    d = A @ np.asarray(d_body)
+    d = d / math.sqrt(float(d @ d))
     Jn = (np.abs(A) @ problem.inertia) / Jmax
     un = (np.abs(A) @ problem.torque_max) / umax
     cones = []
     for i, c in enumerate(problem.cones):
-        a = A @ qrotate_inv(np.asarray(problem.q0, float), np.asarray(c.axis, float))
-        a = a / np.linalg.norm(a)
+        a = A @ qrotate_inv(q0, c.axis)
+        a = a / math.sqrt(float(a @ a))
         cones.append((_arc_margin(a, c.half_angle, d), i, a, float(c.half_angle)))
     cones.sort(key=lambda r: (r[0], r[1]))
     x = np.zeros(N_CONE_FEATURES)
@@ -153,12 +168,12 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
         x[9 + 5 * k:9 + 5 * k + 3] = a
         x[9 + 5 * k + 3] = ha
         x[9 + 5 * k + 4] = 1.0
-    # eigenaxis pointing slew (cones ignored): about +x × d through the angle between them
-    th = math.acos(float(np.clip(d[0], -1.0, 1.0)))
-    ax = np.cross([1.0, 0.0, 0.0], d)
-    nax = np.linalg.norm(ax)
-    ax = ax / nax if nax > 1e-9 else np.array([0.0, 0.0, 1.0])
-    acc = eigenaxis_acceleration(Jn, un, math.inf, ax)
+    # eigenaxis pointing slew (cones ignored): about +x × d = (0, -d_z, d_y) through the angle
+    # between them; for an opposite target, about +z
+    th = math.acos(min(1.0, max(-1.0, float(d[0]))))
+    nax = math.hypot(float(d[1]), float(d[2]))
+    ax = np.array([0.0, -d[2] / nax, d[1] / nax]) if nax > 1e-9 else np.array([0.0, 0.0, 1.0])
+    acc = 1.0 / float(np.max(np.abs(Jn * ax) / un))    # the per-axis bound (guesses.eigenaxis_acceleration)
     T_ref = 2.0 * math.sqrt(max(th, 1e-6) / acc)
     return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(r[1] for r in cones))
 
