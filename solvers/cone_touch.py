@@ -470,25 +470,26 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     x0 = np.concatenate([z / nz, [float(guess.tf) / tau], tc, nu])
     ok, nit, nfev, rn = False, 0, 0, math.inf
     starts = [x0]
-    st = _structure_of(guess, tau)
-    if st is not None:
-        # the switch-time formulation first: smooth in its unknowns, so a guess with the right
-        # structure converges from further away than the event-driven Newton below. Its answer
-        # is an extremal only if the structure was right (no switching function crosses zero
-        # where the structure has no switch): the event-driven Newton starts from it, and
-        # converges at once if so
-        zs, Ts, tcs, nus = z / nz, x0[6], tc, nu
-        for _ in range(STRUCTURE_REPAIRS + 1):
-            xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus)
-            nit, nfev = nit + n1, nfev + n2
-            if not ok_s:
-                break
-            fixed = repaired_structure(tp, xs_, times, st)
-            if fixed is None:
-                starts.insert(0, xs_)
-                break
-            st = fixed
-            zs, Ts, tcs, nus = tp.unpack(xs_)
+    # the switch-time formulation first: smooth in its unknowns, so a guess with the right
+    # structure converges from further away than the event-driven Newton below. Its answer is
+    # an extremal only if the structure was right (no switching function crosses zero where
+    # the structure has no switch): the event-driven Newton starts from it, and converges at
+    # once if so. Structures tried: the guess's, then the one its own costates produce
+    # (event-driven propagation through the guessed touches), if different
+    tried = []
+    for st in (_structure_of(guess, tau), "propagated"):
+        if st == "propagated":
+            st = propagated_structure(tp, x0)
+        if st is None or any(_same_structure(st, o) for o in tried):
+            continue
+        tried.append(st)
+        xs_, n1, n2 = _switch_time_solve(tp, x0, st)
+        nit, nfev = nit + n1, nfev + n2
+        if xs_ is not None:
+            starts.insert(len(tried) - 1, xs_)
+            R_ev = tp.segments(xs_, want_jac=False)[0]
+            if R_ev is not None and float(np.max(np.abs(R_ev))) < 1e-9:
+                break       # the event-driven flow agrees: this structure is the extremal's
     for xstart in starts:
         x, ok, n1, n2, rn = newton(tp, xstart)
         nit, nfev = nit + n1, nfev + n2
@@ -519,6 +520,48 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     sol.nit, sol.nfev = nit, nfev
     sol.wall_time = time.perf_counter() - t_start
     return sol
+
+
+def _switch_time_solve(tp, x0, st):
+    """Switch-time Newton from ``x0`` with structure ``st``, repaired up to
+    ``STRUCTURE_REPAIRS`` times: ``(x or None, nit, nfev)``."""
+    nit = nfev = 0
+    zs, Ts, tcs, nus = tp.unpack(x0)
+    for _ in range(STRUCTURE_REPAIRS + 1):
+        xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus)
+        nit, nfev = nit + n1, nfev + n2
+        if not ok_s:
+            return None, nit, nfev
+        fixed = repaired_structure(tp, xs_, times, st)
+        if fixed is None:
+            return xs_, nit, nfev
+        st = fixed
+        zs, Ts, tcs, nus = tp.unpack(xs_)
+    return None, nit, nfev
+
+
+def propagated_structure(tp, x):
+    """The structure the event-driven bang-bang flow gives from ``x`` (switches located on the
+    switching functions, costate jumps at the touches), or ``None`` if it fails."""
+    R, _, pieces = tp.segments(x, want_jac=False)
+    if R is None:
+        return None
+    bvp = tp.bvp
+    t0, sw_t, sw_a = 0.0, [], []
+    for y0, dur, signs in pieces:
+        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, _ = bvp._run(y0, dur, None, signs0=signs)
+        if status != af.FLOW_OK:
+            return None
+        sw_t.extend((swt[:n_sw] + t0).tolist())
+        sw_a.extend(swa[:n_sw].tolist())
+        t0 += dur
+    order = np.argsort(sw_t, kind="stable")
+    return Structure(np.asarray(pieces[0][2], float).copy(), np.asarray(sw_a, dtype=np.int64)[order],
+                     np.asarray(sw_t, float)[order])
+
+
+def _same_structure(a, b):
+    return np.array_equal(a.signs0, b.signs0) and np.array_equal(a.axes, b.axes)
 
 
 def _structure_of(guess, tau):
