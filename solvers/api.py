@@ -62,6 +62,9 @@ METHODS = ("auto", "indirect", "multiple-shooting", "collocation")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget"}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
+# a cone model\'s guess either converges in tens of milliseconds or not at all: a failure must
+# cost little before the collocation route
+CONE_WARM_BUDGET = 0.25
 REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation when the learned guess failed
 
 
@@ -173,7 +176,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
-    default 1), ``tols`` (verification tolerances, see
+    default 1; 0.25 with keep-out cones), ``tols`` (verification tolerances, see
     ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400 steps), ``eps_min`` (end of the
     smoothing path, default 1e-3), ``rtol``/``atol`` (integrator). ``collocation``: a dict
     of options for ``solvers.collocation.solve_collocation`` (``method="collocation"`` and
@@ -260,7 +263,7 @@ def _warm_start(prob, method, warm_start, options):
     t_inf = getattr(model, "last_inference_s", t_guess)
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     total = float(options.get("time_budget", 20.0))
-    budget = min(float(options.get("warm_budget", WARM_BUDGET)), total)
+    budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET if prob.cones else WARM_BUDGET)), total)
     opts = {k: v for k, v in options.items() if k != "warm_budget"}
     if prob.cones:
         sol = _solve_learned_cones(prob, g, opts, budget)

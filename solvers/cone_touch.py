@@ -230,7 +230,7 @@ def _fixed_structure_switching(tp, x, times, st, per_arc=24):
     for t_next, kind, j in events + [(T, 2, -1)]:
         dt = t_next - t_prev
         if dt > 0.0:
-            Y, _, n_rec, _, _, status, rt, rY, *_ = bvp._run(y, dt, None, signs0=signs, record=4 * per_arc,
+            Y, _, n_rec, _, _, status, rt, rY, *_ = bvp._run(y, dt, None, signs0=signs, record=20 * per_arc,
                                                              detect=False, hmax=dt / per_arc)
             if status != af.FLOW_OK:
                 return None
@@ -272,8 +272,10 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         return x[:6], x[6:6 + n], float(x[6 + n]), x[7 + n:7 + n + K], x[7 + n + K:]
 
     def inside(x):
+        # touches keep their order: the event-driven problem pairs instants with cones in order
         _, tt, T, tc, _ = split(x)
-        return T > 0.0 and np.all(tt >= 0.0) and np.all(tt <= T) and np.all(tc > 0.0) and np.all(tc < T)
+        return (T > 0.0 and np.all(tt >= 0.0) and np.all(tt <= T) and np.all(tc > 0.0) and np.all(tc < T)
+                and np.all(np.diff(tc) > 0.0))
 
     def pack(x):
         z, tt, T, tc, nu = split(x)
@@ -477,7 +479,10 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     # once if so. Structures tried: the guess's, then the one its own costates produce
     # (event-driven propagation through the guessed touches), if different
     tried = []
+    over = lambda: time.perf_counter() - t_start > time_budget   # noqa: E731
     for st in (_structure_of(guess, tau), "propagated"):
+        if over():
+            break
         if st == "propagated":
             st = propagated_structure(tp, x0)
         if st is None or any(_same_structure(st, o) for o in tried):
@@ -486,11 +491,13 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         xs_, n1, n2 = _switch_time_solve(tp, x0, st)
         nit, nfev = nit + n1, nfev + n2
         if xs_ is not None:
-            starts.insert(len(tried) - 1, xs_)
+            starts.insert(len(starts) - 1, xs_)     # before the raw guess, after earlier answers
             R_ev = tp.segments(xs_, want_jac=False)[0]
             if R_ev is not None and float(np.max(np.abs(R_ev))) < 1e-9:
                 break       # the event-driven flow agrees: this structure is the extremal's
     for xstart in starts:
+        if over() and xstart is x0 and len(starts) > 1:
+            break
         x, ok, n1, n2, rn = newton(tp, xstart)
         nit, nfev = nit + n1, nfev + n2
         if ok:

@@ -467,42 +467,51 @@ def _hidden_crossing(Y, Ynew, K0, K1, h, J, umax, signs, pen, axis):
     # σS(θ) on θ ∈ [0, 1]: a θ³ + b θ² + d0 θ + s0
     a = 2.0 * s0 + d0 - 2.0 * s1 + d1
     b = -3.0 * s0 - 2.0 * d0 + 3.0 * s1 - d1
-    # a step that starts on a switch (S ≈ 0 to rounding) is not checked: the crossing at its
-    # start is the switch just taken
     scale = max(max(abs(s0), abs(s1)), max(abs(d0), abs(d1)))
-    if not (s0 < -1e-10 * scale) or not (s1 < 0.0):
+    if not (s1 < 0.0):
         return 0.0
-    best = 0.0
-    best_v = 0.0
-    # extrema: 3a θ² + 2b θ + d0 = 0
+    if not (s0 < -1e-10 * scale):
+        # the step starts on a switch (S ≈ 0 to rounding): S must leave zero to the arc's side
+        # (else the crossing at the start is the switch just taken); a pulse is then a maximum
+        # of the cubic after its first minimum, which the maxima-only search below finds
+        if not (d0 < 0.0):
+            return 0.0
+    # maxima of σS on (0, 1): roots of 3a θ² + 2b θ + d0 with 6a θ + 2b < 0 (stable formula:
+    # when S is nearly a parabola over the step, a is rounding noise)
     A = 3.0 * a
     B = 2.0 * b
     C = d0
     roots = np.empty(2)
     nr = 0
-    if abs(A) < 1e-300:
-        if abs(B) > 1e-300:
+    if abs(A) <= 1e-12 * abs(B):
+        if B != 0.0:
             roots[0] = -C / B
             nr = 1
     else:
         disc = B * B - 4.0 * A * C
         if disc >= 0.0:
-            sq = math.sqrt(disc)
-            roots[0] = (-B - sq) / (2.0 * A)
-            roots[1] = (-B + sq) / (2.0 * A)
-            nr = 2
+            qq = -0.5 * (B + math.copysign(math.sqrt(disc), B))
+            if qq != 0.0:
+                roots[0] = qq / A
+                roots[1] = C / qq
+                nr = 2
+            else:
+                roots[0] = 0.0
+                nr = 1
+    best = 0.0
+    best_v = 1e-12 * scale
     for k in range(nr):
         th = roots[k]
-        if th > 0.0 and th < 1.0:
+        if th > 0.0 and th < 1.0 and 3.0 * a * th + b < 0.0:
             v = ((a * th + b) * th + d0) * th + s0
             if v > best_v:
                 best_v = v
                 best = th
-    if best_v <= 0.0:
+    if best == 0.0:
         return 0.0
     Yc = Y[:NY].copy()
     Yt, Kt = _dop853_step(Yc, best * h, 0, J, umax, MODE_BANG, 0.0, 1.0, signs, pen, K0[:NY].copy())
-    if sg * Yt[11 + axis] / J[axis] > 0.0:
+    if sg * Yt[11 + axis] / J[axis] > 1e-13 * scale:   # not a graze at rounding level
         return best * h
     return 0.0
 

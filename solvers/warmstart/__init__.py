@@ -48,12 +48,11 @@ def default_model() -> WarmStartModel:
     return WarmStartModel.load(DEFAULT_MODEL_FILE)
 
 
-@functools.lru_cache(maxsize=1)
 def default_cone_model():
-    """The shipped pointing-cones model, or ``None`` if none is shipped."""
+    """The shipped pointing-cones model (loaded once per process), or ``None`` if none is shipped."""
     if not os.path.exists(DEFAULT_CONE_MODEL_FILE):
         return None
-    return WarmStartModel.load(DEFAULT_CONE_MODEL_FILE)
+    return load_model(DEFAULT_CONE_MODEL_FILE)
 
 
 def resolve(warm_start, problem=None):

@@ -11,7 +11,7 @@ form removes what does not change the answer:
 * **the labelling of the body axes, and mirror images** — a signed axis permutation ``A``
   takes the sensor axis to ``+x``. Besides the rotations of the cube, ``A`` may be a
   reflection: the mirror image of a slew (inertial and body frames reflected together,
-  ``R → A R A``) is a slew of the same body under the same box bound in the same time, with
+  ``R → A R Aᵀ``) is a slew of the same body under the same box bound in the same time, with
   polar vectors (target, cone axes) mapped by ``A`` and axial ones (rates, torques, the
   costates) by ``det(A) A``. Of the eight ``A`` with ``A s = +x``, the one with
   ``J'_y ≥ J'_z``, then the target's ``y`` component ``≥ 0``, then its ``z`` component

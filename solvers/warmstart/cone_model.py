@@ -105,7 +105,8 @@ class ConeWarmStartModel(WarmStartModel):
         z = z / max(float(np.linalg.norm(z)), 1e-12)
         T = float(T_ref * math.exp(out[L["log_T_ratio"][0]]))
         p = 1.0 / (1.0 + np.exp(-out[slice(*L["touch_logit"])]))
-        tc = T / (1.0 + np.exp(-out[slice(*L["touch_time_logit"])]))
+        # strictly inside (0, T) even where the sigmoid saturates
+        tc = T * np.clip(1.0 / (1.0 + np.exp(-out[slice(*L["touch_time_logit"])])), 1e-6, 1.0 - 1e-6)
         nu = np.exp(np.clip(out[slice(*L["log_nu"])], -20.0, 5.0))
         uf = np.where(out[slice(*L["u_first_logit"])] >= 0.0, 1.0, -1.0)
         cl = out[slice(*L["count_logits"])].reshape(3, K + 1)

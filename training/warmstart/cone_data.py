@@ -31,6 +31,8 @@ def training_arrays(paths, family="pointing-cones", max_switches=5) -> dict:
     n_double = n_overflow = 0
     counts = {}
     for path, r in exact_records(paths, family, counts):
+        if r.get("switch_times") is None or r.get("u_first") is None:
+            continue
         p = SlewProblem.from_dict(r["problem"])
         cf = cone_canonical_form(p)
         z, nz = costate_to_canonical(p, cf, r["costate0"])

@@ -125,9 +125,12 @@ def build_nn(data_paths, out_path, max_switches=5, k=3):
 def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, train_data=None, out="runs/evaluate",
              baseline_n=100, workers=None, budget=5.0, progress_bar=True, warm_budget=None) -> dict:
     """See the module docstring. ``budget``: seconds per classical guess (eigenaxis, random);
-    ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s)."""
-    from solvers.api import WARM_BUDGET
-    warm_budget = WARM_BUDGET if warm_budget is None else float(warm_budget)
+    ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s, or
+    0.25 s for the pointing-cones family)."""
+    from solvers.api import CONE_WARM_BUDGET, WARM_BUDGET
+    if warm_budget is None:
+        warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
+    warm_budget = float(warm_budget)
     from solvers import warmstart
     os.makedirs(out, exist_ok=True)
     model = warmstart.load_model(model_path) if model_path else warmstart.default_model()
