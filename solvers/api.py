@@ -64,7 +64,7 @@ _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enou
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model\'s guess either converges in tens of milliseconds or not at all: a failure must
 # cost little before the collocation route
-CONE_WARM_BUDGET = 0.25
+CONE_WARM_BUDGET = 0.1
 REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation when the learned guess failed
 
 
@@ -176,7 +176,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
-    default 1; 0.25 with keep-out cones), ``tols`` (verification tolerances, see
+    default 1; 0.1 with keep-out cones), ``tols`` (verification tolerances, see
     ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400 steps), ``eps_min`` (end of the
     smoothing path, default 1e-3), ``rtol``/``atol`` (integrator). ``collocation``: a dict
     of options for ``solvers.collocation.solve_collocation`` (``method="collocation"`` and

@@ -260,7 +260,7 @@ def repaired_structure(tp, x, times, st):
     return None if same else new
 
 
-def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3):
+def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3, deadline=math.inf):
     """Newton with a line search on ``_structured_residual``: ``(x, converged, nit, nfev,
     residual, switch instants)`` with ``x = [z, T, touch instants, multipliers]`` as
     ``TouchProblem`` takes it (the event-driven Newton then checks the structure)."""
@@ -291,6 +291,8 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         rn = float(np.max(np.abs(r)))
         if rn < tol:
             return pack(x)[0], True, it, nfev, rn, pack(x)[1]
+        if time.perf_counter() > deadline:
+            return pack(x)[0], False, it, nfev, rn, pack(x)[1]
         dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]
         big = float(np.max(np.abs(dx) / scale))
         if big > max_step:
@@ -313,7 +315,7 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
     return pack(x)[0], rn < tol, max_iter, nfev, rn, pack(x)[1]
 
 
-def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3):
+def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3, deadline=math.inf):
     """Damped Newton on the touch-point problem: ``(x, converged, nit, nfev, residual)``."""
     x = np.asarray(x0, float).copy()
     R, Jm, msg = tp.segments(x)
@@ -325,6 +327,8 @@ def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3):
         rn = float(np.max(np.abs(R)))
         if rn < tol:
             return x, True, it, nfev, rn
+        if time.perf_counter() > deadline:
+            return x, False, it, nfev, rn
         # minimum-norm least squares: a bang-bang Jacobian is rank-deficient when the iterate
         # has fewer switches than conditions (see shooting.newton_shoot)
         dx = np.linalg.lstsq(Jm, -R, rcond=1e-10)[0]
@@ -488,7 +492,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         if st is None or any(_same_structure(st, o) for o in tried):
             continue
         tried.append(st)
-        xs_, n1, n2 = _switch_time_solve(tp, x0, st)
+        xs_, n1, n2 = _switch_time_solve(tp, x0, st, t_start + time_budget)
         nit, nfev = nit + n1, nfev + n2
         if xs_ is not None:
             starts.insert(len(starts) - 1, xs_)     # before the raw guess, after earlier answers
@@ -498,7 +502,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     for xstart in starts:
         if over() and xstart is x0 and len(starts) > 1:
             break
-        x, ok, n1, n2, rn = newton(tp, xstart)
+        x, ok, n1, n2, rn = newton(tp, xstart, deadline=t_start + time_budget if not smoothing else math.inf)
         nit, nfev = nit + n1, nfev + n2
         if ok:
             break
@@ -529,13 +533,13 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     return sol
 
 
-def _switch_time_solve(tp, x0, st):
+def _switch_time_solve(tp, x0, st, deadline=math.inf):
     """Switch-time Newton from ``x0`` with structure ``st``, repaired up to
     ``STRUCTURE_REPAIRS`` times: ``(x or None, nit, nfev)``."""
     nit = nfev = 0
     zs, Ts, tcs, nus = tp.unpack(x0)
     for _ in range(STRUCTURE_REPAIRS + 1):
-        xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus)
+        xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus, deadline=deadline)
         nit, nfev = nit + n1, nfev + n2
         if not ok_s:
             return None, nit, nfev

@@ -126,7 +126,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
              baseline_n=100, workers=None, budget=5.0, progress_bar=True, warm_budget=None) -> dict:
     """See the module docstring. ``budget``: seconds per classical guess (eigenaxis, random);
     ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s, or
-    0.25 s for the pointing-cones family)."""
+    0.1 s for the pointing-cones family)."""
     from solvers.api import CONE_WARM_BUDGET, WARM_BUDGET
     if warm_budget is None:
         warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
