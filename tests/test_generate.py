@@ -139,14 +139,22 @@ def test_pointing_cones_records_failures_with_reason(tmp_path, capsys):
         generate(GenerationSpec("pointing-cones", seed=2, n=4), out, workers=1, progress=False)
 
 
-def test_pointing_cones_default_route_gives_approximate_collocation_answers(tmp_path):
+def test_pointing_cones_default_route_records_touch_extremals(tmp_path):
+    """Seed 1: both paths touch cones (problem 0 twice, problem 1 once): exact extremals with
+    their touch multipliers (collocation answers before the switch-time touch formulation)."""
     out = tmp_path / "c2.jsonl"
     code = main(["generate", "--family", "pointing-cones", "--n", "2", "--seed", "1", "-o", str(out),
                  "--workers", "1", "--no-progress"])
     assert code == 0
-    for r in load(out):
-        assert r["success"] is True and r["method"] == "collocation" and r["exact"] is False
-        assert r["verification"]["cone_clearance"]["value"] >= -1e-6
+    recs = sorted(load(out), key=lambda r: r["index"])
+    for r in recs:
+        assert r["success"] is True and r["verification"]["cone_clearance"]["value"] >= -1e-6
+        assert r["exact"] is (r["method"] == "indirect")
+    assert [r["exact"] for r in recs] == [True, True]
+    for r, k in zip(recs, (2, 1)):
+        tm = r["verification"]["touch_multipliers"]
+        assert len(tm["times"]) == len(tm["multipliers"]) == len(tm["costate_jumps"]) == k
+        assert min(tm["multipliers"]) >= 0.0
 
 
 # --- pluggable routes (module-level so they could also run in a pool) ------------------------------
