@@ -213,3 +213,31 @@ def test_cone_training_arrays_and_a_short_training_run(tmp_path):
     g, why = m.guess_or_reason(TOUCH)
     assert why is None and g.tf > 0
     assert json.loads(open(tmp_path / "run" / "summary.json").read())["n_exact_solutions"] == a["X"].shape[0]
+
+
+def test_cone_nearest_neighbour_table_round_trip_and_guess(tmp_path):
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    from training.warmstart.cone_data import training_arrays
+    from training.warmstart.evaluate import build_nn
+    path = build_nn([DATA], str(tmp_path / "c.nn.npz"), family="pointing-cones")
+    nn = load_model(path)
+    assert isinstance(nn, ConeNearestNeighbourModel) and nn.covers(TOUCH) is None
+    assert "qf" in nn.covers(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=[1.0, 0.0, 0.0, 0.0]))
+    # a problem of the table is its own nearest neighbour: its stored answer comes back
+    a = training_arrays(DATA)
+    rec = [json.loads(l) for l in open(DATA).read().splitlines()[1:]]
+    key = a["key"][0]
+    r = next(r for r in rec if f"{DATA}:{r['index']}" == key)
+    p = SlewProblem.from_dict(r["problem"])
+    g = nn.guess(p)
+    assert g.source == "nearest-neighbour[0]" and len(g.candidates) == 2
+    assert g.tf == pytest.approx(r["tf"], rel=1e-9)
+    for s_g, s_r in zip(g.switch_times, r["switch_times"]):
+        np.testing.assert_allclose(s_g, np.sort(s_r), rtol=1e-9)
+    np.testing.assert_array_equal(g.u_first, r["u_first"])
+    tm = (r["verification"] or {}).get("touch_multipliers")
+    if tm:
+        assert sorted(c for c, _, _ in g.touches) == sorted(tm["cones"])
+    c = np.asarray(r["costate0"])
+    assert abs(float(np.asarray(g.costate0) @ c) / (np.linalg.norm(g.costate0) * np.linalg.norm(c))) == \
+        pytest.approx(1.0, abs=1e-9)

@@ -57,6 +57,9 @@ class NearestNeighbourModel:
             raise ModelFileError(f"model: {path} has no readable card ({e})") from None
         if card.get("format") != NN_FORMAT or card.get("format_version") != NN_FORMAT_VERSION:
             raise ModelFileError(f"model: {path} is not a {NN_FORMAT} v{NN_FORMAT_VERSION} file")
+        if card.get("kind") == "pointing-cones":
+            from .cone_nearest import ConeNearestNeighbourModel
+            return ConeNearestNeighbourModel.from_card(d, card, path)
         return cls.from_arrays(d, k=card.get("k", 3), domain=card.get("domain"), name=card.get("name", "nearest-neighbour"))
 
     def save(self, path):

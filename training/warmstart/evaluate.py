@@ -112,7 +112,14 @@ def inference_time(model, family, seed, n=200):
     return float(np.median(ts))
 
 
-def build_nn(data_paths, out_path, max_switches=5, k=3):
+def build_nn(data_paths, out_path, max_switches=5, k=3, family="full-attitude"):
+    if family == "pointing-cones":
+        from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+        from .cone_data import training_arrays as cone_arrays
+        a = cone_arrays(data_paths, max_switches=max_switches)
+        nn = ConeNearestNeighbourModel(a, k=k, name=f"nearest-neighbour (k={k}, {a['X'].shape[0]} solutions)")
+        nn.save(out_path)
+        return out_path
     from solvers.warmstart import NearestNeighbourModel
     from .data import training_arrays
     a = training_arrays(data_paths, max_switches)
@@ -136,7 +143,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
     model = warmstart.load_model(model_path) if model_path else warmstart.default_model()
     nn_path = None
     if train_data:
-        nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"))
+        nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"), family=family)
     t_inference = inference_time(model, family, seed)   # before the pool: a quiet process
     jobs = []
     for i in range(n):

@@ -1,0 +1,93 @@
+"""Nearest-neighbour warm start for pointing slews with keep-out cones: the data-driven
+baseline of the pointing-cones model (``cone_model``), built from the same data.
+
+The table holds, per exact solution, its canonical features (``cone_features``) and its
+canonical solution: costates ``z'``, ``T`` (with the reference time ``T_ref``), first-arc
+signs, switch instants per canonical axis as fractions of ``T``, and per cone slot the touch
+(flag, instant as a fraction of ``T``, ``log ν``). A query's ``k`` nearest rows (standardised
+Euclidean distance) become the guess and its candidates, nearest first, mapped to the query's
+axes and cones exactly as the network's outputs are.
+
+File format (``.nn.npz``, ``card.kind = "pointing-cones"``): ``X`` (n, 24), ``Z`` (n, 6), ``T``,
+``T_ref`` (n,), ``U`` (n, 3), ``F`` (n, 3, K), ``touch``, ``frac``, ``log_nu`` (n, 3), ``card``.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from slew_env import SlewProblem
+from ..guesses import Guess
+from .cone_features import cone_canonical_form, cone_unsupported_reason, costate_from_canonical
+from .model import ModelFileError, read_npz
+from .nearest import NN_FORMAT, NN_FORMAT_VERSION
+
+ARRAYS = ("X", "Z", "T", "T_ref", "U", "F", "touch", "frac", "log_nu")
+
+
+class ConeNearestNeighbourModel:
+    KIND = "pointing-cones"
+
+    def __init__(self, arrays: dict, k=3, domain=None, name="nearest-neighbour (pointing-cones)"):
+        self.a = {key: np.asarray(arrays[key], float) for key in ARRAYS}
+        if self.a["X"].ndim != 2 or self.a["X"].shape[0] == 0:
+            raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
+        self.k = int(k)
+        self.domain = domain or {}
+        self.name = name
+        self.scale = np.maximum(self.a["X"].std(axis=0), 1e-3)
+        self.tree = cKDTree(self.a["X"] / self.scale)
+
+    @classmethod
+    def from_card(cls, d, card, path):
+        try:
+            return cls({key: d[key] for key in ARRAYS}, k=card.get("k", 3), domain=card.get("domain"),
+                       name=card.get("name", "nearest-neighbour (pointing-cones)"))
+        except KeyError as e:
+            raise ModelFileError(f"model: {path} lacks the array {e}") from None
+
+    def save(self, path):
+        card = {"format": NN_FORMAT, "format_version": NN_FORMAT_VERSION, "kind": self.KIND, "k": self.k,
+                "domain": self.domain, "name": self.name}
+        np.savez(path, **self.a, card=np.array(json.dumps(card)))
+
+    def covers(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        why = cone_unsupported_reason(problem)
+        if why:
+            return why
+        if problem.rate_max is not None:
+            return "rate_max: the table holds problems without rate limits"
+        if not np.isinf(problem.torque_norm):
+            return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
+        if not problem.cones:
+            return "cones: the table holds problems with 1–3 cones"
+        return None
+
+    def guess(self, problem) -> Guess:
+        problem = SlewProblem.from_dict(problem)
+        why = self.covers(problem)
+        if why:
+            raise ValueError(f"problem not covered by {self.name}: {why}")
+        cf = cone_canonical_form(problem)
+        a = self.a
+        _, idx = self.tree.query(cf.x / self.scale, k=min(self.k, a["X"].shape[0]))
+        out = None
+        for rank, j in enumerate(np.atleast_1d(idx)):
+            T = a["T"][j] * cf.T_ref / a["T_ref"][j]
+            sw = [None] * 3
+            for i, body in enumerate(cf.order):
+                f = a["F"][j, i]
+                sw[body] = np.sort(f[np.isfinite(f)]) * T * cf.tau
+            touches = [(cf.slots[k], float(a["frac"][j, k] * T * cf.tau), float(np.exp(a["log_nu"][j, k]) * cf.tau))
+                       for k in range(len(problem.cones)) if a["touch"][j, k] > 0.5]
+            g = Guess(costate_from_canonical(problem, cf, a["Z"][j]), T * cf.tau, sw, cf.axial.T @ a["U"][j],
+                      source=f"nearest-neighbour[{rank}]", touches=touches or None)
+            if out is None:
+                out = g
+            else:
+                out.candidates.append(g)
+        return out
