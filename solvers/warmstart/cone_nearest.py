@@ -23,7 +23,7 @@ from slew_env import SlewProblem
 from ..guesses import Guess
 from .cone_features import cone_canonical_form, cone_unsupported_reason, costate_from_canonical
 from .model import ModelFileError, read_npz
-from .nearest import NN_FORMAT, NN_FORMAT_VERSION
+from .nearest import NN_FORMAT, NN_FORMAT_VERSION, table_coverage
 
 ARRAYS = ("X", "Z", "T", "T_ref", "U", "F", "touch", "frac", "log_nu")
 
@@ -56,16 +56,10 @@ class ConeNearestNeighbourModel:
 
     def covers(self, problem):
         problem = SlewProblem.from_dict(problem)
-        why = cone_unsupported_reason(problem)
-        if why:
-            return why
-        if problem.rate_max is not None:
-            return "rate_max: the table holds problems without rate limits"
-        if not np.isinf(problem.torque_norm):
-            return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
-        if not problem.cones:
-            return "cones: the table holds problems with 1–3 cones"
-        return None
+        why = table_coverage(problem, cone_unsupported_reason)
+        if why is None and not problem.cones:
+            why = "cones: the table holds problems with 1–3 cones"
+        return why
 
     def guess(self, problem) -> Guess:
         problem = SlewProblem.from_dict(problem)

@@ -30,6 +30,19 @@ NN_FORMAT = "slewopt-nn"
 NN_FORMAT_VERSION = 1
 
 
+def table_coverage(problem, unsupported):
+    """Why a table of rest-to-rest, per-axis solutions without rate limits does not cover
+    ``problem`` (``unsupported``: the canonical form's own reasons), or ``None``."""
+    why = unsupported(problem)
+    if why:
+        return why
+    if problem.rate_max is not None:
+        return "rate_max: the table holds problems without rate limits"
+    if not np.isinf(problem.torque_norm):
+        return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
+    return None
+
+
 class NearestNeighbourModel:
     def __init__(self, X, Z, T, T_eig, U, S, k=3, domain=None, name="nearest-neighbour"):
         self.X = np.asarray(X, float)
@@ -69,15 +82,7 @@ class NearestNeighbourModel:
                  card=np.array(json.dumps(card)))
 
     def covers(self, problem):
-        problem = SlewProblem.from_dict(problem)
-        why = unsupported_reason(problem)
-        if why:
-            return why
-        if problem.rate_max is not None:
-            return "rate_max: the table holds problems without rate limits"
-        if not np.isinf(problem.torque_norm):
-            return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
-        return None
+        return table_coverage(SlewProblem.from_dict(problem), unsupported_reason)
 
     def guess(self, problem) -> Guess:
         problem = SlewProblem.from_dict(problem)
