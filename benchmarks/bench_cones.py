@@ -8,10 +8,11 @@ extremals, for active cones), median / 95th-percentile wall time, median final t
 cone clearance of the verified answers, and the ratio of each method's time to
 collocation's on the same problems.
 
-    python benchmarks/bench_cones.py [--n 40] [--seed 0] [--no-cones]
+    python benchmarks/bench_cones.py [--n 40] [--seed 0] [--no-cones] [--warm-start default|none|MODEL.npz]
 
 ``--no-cones``: the same family's pointing-only slews without cones (the indirect route's
-roll transversality; ``auto`` refines collocation to exact extremals).
+roll transversality; ``auto`` refines collocation to exact extremals). ``--warm-start``: the
+learned guess tried first by ``auto`` and ``indirect`` (default: the shipped models).
 """
 import argparse
 import os
@@ -33,25 +34,31 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-cones", action="store_true")
+    ap.add_argument("--warm-start", default="default",
+                    help="default (the shipped models: the pointing-cones one for these problems), none, or MODEL.npz")
     args = ap.parse_args(argv)
+    ws = None if args.warm_start == "none" else args.warm_start
     dist = TaskDistribution.family("pointing-cones", **({"n_cones": (0, 0)} if args.no_cones else {}))
     probs = [dist.sample(np.random.default_rng([args.seed, i])) for i in range(args.n)]
     solvers.solve(probs[0], method="collocation")      # warm caches
+    solvers.solve(probs[0], warm_start=ws)
     rows = {m: [] for m in METHODS}
     for k, p in enumerate(probs):
         for m in METHODS:
             t0 = time.perf_counter()
             try:
-                s = solvers.solve(p, method=m)
+                s = solvers.solve(p, method=m, warm_start=ws)
                 rows[m].append((s.success, time.perf_counter() - t0, s.tf,
                                 s.verification.get("cone_clearance", {}).get("value", np.nan), "",
-                                s.exact, "penalty homotopy" in s.route))
+                                s.exact, "penalty homotopy" in s.route, bool(s.warm_start.get("succeeded"))))
             except ValueError as e:   # the indirect route declines cones (clear error)
-                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False, False))
+                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False, False, False))
         print(f"\r{k + 1}/{len(probs)}", end="", file=sys.stderr)
     print(file=sys.stderr)
     ncones = [len(p.cones) for p in probs]
-    print(f"pointing-cones benchmark{' (cones removed)' if args.no_cones else ''}: {args.n} problems (seed {args.seed}), cones per problem "
+    won = sum(1 for k in range(len(probs)) if rows["auto"][k][7])
+    print(f"pointing-cones benchmark{' (cones removed)' if args.no_cones else ''}: {args.n} problems (seed {args.seed}), "
+          f"warm start {args.warm_start} (auto: learned guess won {won}/{len(probs)}), cones per problem "
           f"{dict(zip(*np.unique(ncones, return_counts=True)))}")
     col_t = np.array([r[1] for r in rows["collocation"]])
     for m in METHODS:
