@@ -162,8 +162,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``"collocation"`` (see the module docstring). ``guess``: a ``solvers.Guess``.
 
     ``warm_start``: where the first guess comes from when ``guess`` is not given
-    (indirect routes and ``"auto"``): ``"default"`` (the shipped learned model, for the
-    problems in its family), a model object (``solvers.warmstart.WarmStartModel``,
+    (indirect routes and ``"auto"``): ``"default"`` (the shipped full-attitude model, for the
+    problems in its family), ``"pointing-cones"`` (the shipped model for pointing slews with
+    keep-out cones: opt-in, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
     ``NearestNeighbourModel`` or anything with ``covers(problem)`` and ``guess(problem)``),
     a model file path, or ``None``. The learned candidates are tried alone first (the first
     verified extremal that is not slower than the eigenaxis slew wins); if none is

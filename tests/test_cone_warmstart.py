@@ -241,3 +241,21 @@ def test_cone_nearest_neighbour_table_round_trip_and_guess(tmp_path):
     c = np.asarray(r["costate0"])
     assert abs(float(np.asarray(g.costate0) @ c) / (np.linalg.norm(g.costate0) * np.linalg.norm(c))) == \
         pytest.approx(1.0, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- the shipped model
+def test_shipped_cone_model_is_opt_in():
+    from solvers.warmstart import DEFAULT_CONE_MODEL_FILE, default_cone_model
+    m = default_cone_model()
+    assert isinstance(m, ConeWarmStartModel) and m.path == DEFAULT_CONE_MODEL_FILE
+    t = m.card["training"]
+    assert t["family"] == "pointing-cones" and t["n_records"] >= 5000 and t["n_exact_solutions"] >= 5000
+    assert m.covers(TOUCH) is None
+    # by default a cone problem gets no learned guess, and says why
+    plain = solve(TOUCH)
+    assert plain.success and plain.warm_start["covered"] is False and "opt-in" in plain.warm_start["reason"]
+    # asked for, the shipped cone model is tried first; learned or not, the answer is verified
+    sol = solve(TOUCH, warm_start="pointing-cones")
+    assert sol.success and sol.exact
+    assert sol.warm_start["model"] == m.name and sol.warm_start["covered"] is True
+    assert sol.tf == pytest.approx(plain.tf, rel=1e-6)

@@ -67,7 +67,8 @@ def add_arguments(p):
                    help="batch: worker processes (default 1)")
     p.add_argument("--no-progress", action="store_true", help="batch: no progress bar")
     p.add_argument("--warm-start", default="default", metavar="MODEL",
-                   help="learned warm start: 'default' (the shipped model), 'none', or a model file "
+                   help="learned warm start: 'default' (the shipped full-attitude model), 'pointing-cones' "
+                        "(the shipped model for pointing slews with cones, opt-in), 'none', or a model file "
                         "(.npz from 'slew train', .nn.npz nearest-neighbour table)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
@@ -101,6 +102,8 @@ def _solve_options(args):
     ws = getattr(args, "warm_start", "default")
     if ws in (None, "none", "None"):
         opts["warm_start"] = None
+    elif ws == "pointing-cones":
+        opts["warm_start"] = ws
     elif ws != "default":
         if not os.path.exists(ws):
             raise ValueError(f"--warm-start: model file not found: {ws}")

@@ -24,4 +24,6 @@ slew train --config training/warmstart/configs/pointing-cones.yaml \
 
 # 4. the evaluation in docs/WARMSTART.md (held-out problems of a fresh seed)
 slew evaluate --family pointing-cones --model solvers/warmstart/models/pointing-cones.npz \
-    --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones
+    --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones \
+    --train-data runs/data/pointing-cones-touch-s31.jsonl runs/data/pointing-cones-touch-s32.jsonl \
+    runs/data/pointing-cones-touch-s33.jsonl
