@@ -190,3 +190,35 @@ def test_guess_touches_are_validated(touch_solutions):
         _answer_guess(sol, touches=[(0, 0.5)])
     with pytest.raises(ValueError, match=r"guess.touches\[0\]: cone index 5, but the problem has 3"):
         solve_touch_guess(TOUCH, _answer_guess(sol, touches=[(5, 0.5, 1.0)]))
+
+
+def test_structure_read_back_from_the_switching_functions(touch_solutions):
+    """The exact answer's structure is consistent with its own switching functions (no repair),
+    and the event-driven flow reproduces it; with a switch dropped from the structure, the read
+    back puts it where the switching function still crosses zero."""
+    from solvers.cone_touch import propagated_structure, repaired_structure
+    _, sol, _ = touch_solutions
+    bvp = TouchBVP(TOUCH)
+    bvp.sensor = np.array([1.0, 0.0, 0.0])
+    tp = TouchProblem(bvp, [0])
+    tau = bvp.tau
+    tm = sol.verification["touch_multipliers"]
+    z, T = Guess(sol.costate0, sol.tf).to_nondim(bvp)
+    # the multiplier in the normalisation of z, as solve_touch_guess converts it
+    from slew_env.core.quaternion import qconj, qmul
+    c = np.asarray(sol.costate0)
+    z_raw = np.concatenate([qmul(qconj(bvp.q0), c[:4])[1:4] / tau, c[4:7] / tau ** 2])
+    x = np.concatenate([z, [T], [tm["times"][0] / tau], [tm["multipliers"][0] / (tau * np.linalg.norm(z_raw))]])
+    times = np.concatenate([np.asarray(s) / tau for s in sol.switch_times])
+    axes = np.concatenate([np.full(len(s), i) for i, s in enumerate(sol.switch_times)]).astype(np.int64)
+    order = np.argsort(times)
+    st = Structure(np.asarray(sol.u_first, float), axes[order], times[order])
+    assert repaired_structure(tp, x, st.times, st) is None
+    prop = propagated_structure(tp, x)
+    assert np.array_equal(prop.axes, st.axes) and np.allclose(prop.times, st.times, atol=1e-9)
+    # drop the first switch: up to it the path is unchanged, so S still crosses zero there
+    dropped = Structure(st.signs0.copy(), st.axes[1:], st.times[1:])
+    fixed = repaired_structure(tp, x, dropped.times, dropped)
+    assert fixed is not None
+    on_axis = fixed.times[fixed.axes == st.axes[0]]
+    assert np.min(np.abs(on_axis - st.times[0])) < 1e-3 * T
