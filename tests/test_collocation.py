@@ -292,3 +292,21 @@ def test_r3_costates_converge_with_n(r3_indirect):
     e0, med, mx = _rel_costate_error(sol, r3_indirect)
     assert e0 < 4e-3          # measured 1.3e-3
     assert sol.tf == pytest.approx(R3_TF_PER_AXIS, rel=1e-4)
+
+
+def test_best_of_several_meshes_keeps_the_fastest_verified_answer():
+    from test_cone_touch import TOUCH
+    a = solve_collocation(TOUCH, n_intervals=40)
+    b = solve_collocation(TOUCH, n_intervals=50)
+    both = solve_collocation(TOUCH, n_intervals=[40, 50])
+    assert both.success and both.tf == pytest.approx(min(a.tf, b.tf), rel=1e-9)
+    assert both.route.startswith("best of meshes (N=40: ") and "N=50: " in both.route
+    assert both.nit >= max(a.nit, b.nit)
+    with pytest.raises(ValueError, match="n_intervals: an empty list"):
+        solve_collocation(TOUCH, n_intervals=[])
+    with pytest.raises(ValueError, match="mesh: a custom mesh fixes N"):
+        solve_collocation(TOUCH, n_intervals=[40, 50], mesh=[1.0] * 40)
+    with pytest.raises(ValueError, match="n_intervals: must be at least 2"):
+        solve_collocation(TOUCH, n_intervals=[40, 1])
+    with pytest.raises(ValueError, match="n_intervals: expected integers"):
+        solve_collocation(TOUCH, n_intervals=[40, "80"])
