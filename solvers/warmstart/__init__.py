@@ -60,7 +60,7 @@ class _ConeModelOptIn:
     reason recorded in ``SlewSolution.warm_start`` (the shipped cone model is opt-in)."""
     name = "shipped models"
     REASON = ("cones: the shipped pointing-cones model is opt-in, warm_start='pointing-cones' (on held-out "
-              "problems it converges on 19 %, and 12 % of those answers are slower local extremals than the "
+              "problems it converges on 21 %, and 13 % of those answers are slower local extremals than the "
               "collocation route's; docs/WARMSTART.md)")
 
     def covers(self, problem):
