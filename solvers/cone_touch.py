@@ -76,6 +76,28 @@ def _touch_residual(y, M, cos_a):
     return np.array([h, hd]), g
 
 
+def touch_jump(M, nu, y, G=None, nu_col=None):
+    """The costate jump of a touch, ``λq⁺ = λq⁻ - 2 ν M q``: ``(y⁺, G⁺, Jmap)``. With the
+    sensitivity ``G = dy/dx`` (``None``: not carried), ``G⁺ = Jmap G`` plus ``-2Mq`` in the
+    multiplier's column ``nu_col``; ``Jmap = ∂y⁺/∂y⁻``."""
+    Mq = M @ y[0:4]
+    y_plus = y.copy()
+    y_plus[7:11] -= 2.0 * nu * Mq
+    if G is None:
+        return y_plus, None, None
+    Jmap = np.eye(NY)
+    Jmap[7:11, 0:4] -= 2.0 * nu * M
+    G_plus = Jmap @ G
+    G_plus[7:11, nu_col] -= 2.0 * Mq
+    return y_plus, G_plus, Jmap
+
+
+def _events(times, tc):
+    """Switches ``(t, 0, j)`` and touches ``(t, 1, k)`` in time order, then the end ``(T, 2, -1)``
+    is appended by the caller."""
+    return sorted([(float(t), 0, j) for j, t in enumerate(times)] + [(float(t), 1, k) for k, t in enumerate(tc)])
+
+
 class TouchProblem:
     """The touch-point boundary-value problem of ``bvp`` with touches on ``cones[k]``."""
 
@@ -130,15 +152,9 @@ class TouchProblem:
                 R.append(r)
                 if want_jac:
                     Jr.append(g @ De)
-                # jump λq⁺ = λq⁻ - 2 ν M q
-                Mq = self.M[k] @ ye[0:4]
-                y = ye.copy()
-                y[7:11] -= 2.0 * nu[k] * Mq
+                y, D_plus, _ = touch_jump(self.M[k], nu[k], ye, De if want_jac else None, 7 + K + k)
                 if want_jac:
-                    Jmap = np.eye(NY)
-                    Jmap[7:11, 0:4] -= 2.0 * nu[k] * self.M[k]
-                    D = Jmap @ De
-                    D[7:11, 7 + K + k] -= 2.0 * Mq
+                    D = D_plus
                 signs = s_end.copy()
             else:
                 r, dry, drT = bvp.terminal(ye, T)
@@ -176,9 +192,8 @@ def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
     r[0] = rp[0]
     if want_jac:
         Jm[0, :6] = drp[0]
-    events = sorted([(float(times[j]), 0, j) for j in range(n)] + [(float(tc[k]), 1, k) for k in range(K)])
     t_prev = 0.0
-    for t_next, kind, j in events + [(T, 2, -1)]:
+    for t_next, kind, j in _events(times, tc) + [(T, 2, -1)]:
         y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
         if y is None:
             return None, None
@@ -188,22 +203,16 @@ def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
         if kind == 0:
             r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
             continue
-        f = af.ext_rhs(y, bvp.umax * signs, bvp.J) if want_jac else None
         rr, g = _touch_residual(y, tp.M[j], tp.cos_a[j])
         r[1 + n + 2 * j:3 + n + 2 * j] = rr
-        Mq = tp.M[j] @ y[0:4]
         if want_jac:
+            f = af.ext_rhs(y, bvp.umax * signs, bvp.J)
             Jm[1 + n + 2 * j:3 + n + 2 * j] = g @ G
             Jm[1 + n + 2 * j:3 + n + 2 * j, c_tc + j] += g @ f
-            Jmap = np.eye(NY)
-            Jmap[7:11, 0:4] -= 2.0 * nu[j] * tp.M[j]
-            G = Jmap @ G
-            G[7:11, c_nu + j] -= 2.0 * Mq
-        y = y.copy()
-        y[7:11] -= 2.0 * nu[j] * Mq
+        y, G_plus, Jmap = touch_jump(tp.M[j], nu[j], y, G if want_jac else None, c_nu + j)
         if want_jac:
-            f_plus = af.ext_rhs(y, bvp.umax * signs, bvp.J)
-            G[:, c_tc + j] += Jmap @ f - f_plus
+            G = G_plus
+            G[:, c_tc + j] += Jmap @ f - af.ext_rhs(y, bvp.umax * signs, bvp.J)
     rt, dry, drT = bvp.terminal(y, T)
     r[1 + n + 2 * K:] = rt
     if want_jac:
@@ -224,10 +233,9 @@ def _fixed_structure_switching(tp, x, times, st, per_arc=24):
     z, T, tc, nu = tp.unpack(x)
     y, _ = bvp.initial(z)
     signs = st.signs0.astype(float).copy()
-    events = sorted([(float(times[j]), 0, j) for j in range(st.n)] + [(float(tc[k]), 1, k) for k in range(tp.K)])
     ts, Ss = [np.zeros(1)], [(y[11:14] / bvp.J)[None, :]]
     t_prev = 0.0
-    for t_next, kind, j in events + [(T, 2, -1)]:
+    for t_next, kind, j in _events(times, tc) + [(T, 2, -1)]:
         dt = t_next - t_prev
         if dt > 0.0:
             Y, _, n_rec, _, _, status, rt, rY, *_ = bvp._run(y, dt, None, signs0=signs, record=20 * per_arc,
@@ -242,7 +250,7 @@ def _fixed_structure_switching(tp, x, times, st, per_arc=24):
             a = int(st.axes[j])
             signs[a] = -signs[a]
         elif kind == 1:
-            y[7:11] -= 2.0 * nu[j] * (tp.M[j] @ y[0:4])
+            y = touch_jump(tp.M[j], nu[j], y)[0]
     return np.concatenate(ts), np.vstack(Ss)
 
 
@@ -464,16 +472,10 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
     tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
     tau = bvp.tau
-    lq = np.asarray(guess.costate0[0:4], float) / tau
-    lw = np.asarray(guess.costate0[4:7], float) / tau ** 2
-    mu = qmul(bvp.q0 * np.array([1.0, -1.0, -1.0, -1.0]), lq)[1:4]
-    z = np.concatenate([mu, lw])
-    nz = float(np.linalg.norm(z))
-    if not nz > 0:
-        raise ValueError("guess.costate0: the costate is zero in the solver's gauge")
+    z, T0, nz = guess.to_nondim(bvp, with_norm=True)
     tc = [t / tau for _, t, _ in guess.touches]
     nu = [m / (tau * nz) for _, _, m in guess.touches]
-    x0 = np.concatenate([z / nz, [float(guess.tf) / tau], tc, nu])
+    x0 = np.concatenate([z, [T0], tc, nu])
     ok, nit, nfev, rn = False, 0, 0, math.inf
     starts = [x0]
     # the switch-time formulation first: smooth in its unknowns, so a guess with the right
@@ -551,24 +553,35 @@ def _switch_time_solve(tp, x0, st, deadline=math.inf):
     return None, nit, nfev
 
 
-def propagated_structure(tp, x):
-    """The structure the event-driven bang-bang flow gives from ``x`` (switches located on the
-    switching functions, costate jumps at the touches), or ``None`` if it fails."""
-    R, _, pieces = tp.segments(x, want_jac=False)
-    if R is None:
-        return None
-    bvp = tp.bvp
-    t0, sw_t, sw_a = 0.0, [], []
+def _event_driven_path(bvp, pieces, record=0, hmax=np.inf):
+    """The event-driven flow over the pieces between touches (``TouchProblem.segments``):
+    ``(t, y, signs, switch instants, switch axes)`` (samples only with ``record``; switches in
+    time order), or ``None`` if a piece fails."""
+    t0, ts, ys, sg, sw_t, sw_a = 0.0, [], [], [], [], []
     for y0, dur, signs in pieces:
-        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, _ = bvp._run(y0, dur, None, signs0=signs)
+        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, _ = bvp._run(
+            y0, dur, None, signs0=signs, record=record, hmax=hmax)
         if status != af.FLOW_OK:
             return None
+        ts.append(rt[:n_rec] + t0)
+        ys.append(rY[:n_rec])
+        sg.append(rs[:n_rec])
         sw_t.extend((swt[:n_sw] + t0).tolist())
         sw_a.extend(swa[:n_sw].tolist())
         t0 += dur
     order = np.argsort(sw_t, kind="stable")
-    return Structure(np.asarray(pieces[0][2], float).copy(), np.asarray(sw_a, dtype=np.int64)[order],
-                     np.asarray(sw_t, float)[order])
+    return (np.concatenate(ts), np.vstack(ys), np.vstack(sg), np.asarray(sw_t, float)[order],
+            np.asarray(sw_a, dtype=np.int64)[order])
+
+
+def propagated_structure(tp, x):
+    """The structure the event-driven bang-bang flow gives from ``x`` (switches located on the
+    switching functions, costate jumps at the touches), or ``None`` if it fails."""
+    R, _, pieces = tp.segments(x, want_jac=False)
+    path = _event_driven_path(tp.bvp, pieces) if R is not None else None
+    if path is None:
+        return None
+    return Structure(np.asarray(pieces[0][2], float).copy(), path[4], path[3])
 
 
 def _same_structure(a, b):
@@ -590,22 +603,13 @@ def _verify(tp, x, problem, source, reference, tols):
     tau = bvp.tau
     z, T, tc, nu = tp.unpack(x)
     R, _, pieces = tp.segments(x, want_jac=False)
-    ts_all, ys_all, sg_all, sw_t, sw_a = [], [], [], [], []
-    t0 = 0.0
-    for (y0, dur, signs) in pieces:
-        Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, _ = bvp._run(
-            y0, dur, None, signs0=signs, record=4000, hmax=T / 1000)
-        ts_all.append(rt[:n_rec] + t0)
-        ys_all.append(rY[:n_rec])
-        sg_all.append(rs[:n_rec])
-        sw_t.extend((swt[:n_sw] + t0).tolist())
-        sw_a.extend(swa[:n_sw].tolist())
-        t0 += dur
-    order = np.argsort(sw_t, kind="stable")
-    S = np.vstack(sg_all)
+    path = _event_driven_path(bvp, pieces, record=4000, hmax=T / 1000) if R is not None else None
+    if path is None:
+        return _fail(problem, "the converged touch extremal could not be propagated for its verification",
+                     time.perf_counter())
+    t_all, y_all, S, sw_t, sw_a = path
     # the whole path as one record: both sides of each touch are samples at its instant
-    tr = Trajectory(np.concatenate(ts_all), np.vstack(ys_all), S, np.asarray(sw_t)[order],
-                    np.asarray(sw_a, dtype=np.int64)[order], S[0].copy(), True, "")
+    tr = Trajectory(t_all, y_all, S, sw_t, sw_a, S[0].copy(), True, "")
     checks = extremal_checks(bvp, tr, tols)
     # touch multipliers: ν ≥ 0 (the cone pushes the path out, never pulls it in). Reported in
     # the solution's costate scale (H ≡ -1, problem units), with the jump of λq at each touch,

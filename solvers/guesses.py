@@ -80,15 +80,17 @@ class Guess:
         return [self] + list(self.candidates)
 
     # --- conversion to / from the solver's nondimensional unknowns
-    def to_nondim(self, bvp):
-        """``(z, T)``: normalised ``[μ, λω(0)]`` and the nondimensional final time."""
+    def to_nondim(self, bvp, with_norm=False):
+        """``(z, T)``: normalised ``[μ, λω(0)]`` and the nondimensional final time; with
+        ``with_norm``, also ``|z|`` before normalising (quantities in the scale of
+        ``costate0``, such as touch multipliers, are divided by it too)."""
         lq = self.costate0[:4]
         mu = qmul(qconj(bvp.q0), lq)[1:4]
         z = np.concatenate([mu / bvp.tau, self.costate0[4:] / bvp.tau ** 2])
-        n = np.linalg.norm(z)
+        n = float(np.linalg.norm(z))
         if n == 0:
             raise ValueError("guess.costate0: the costate is zero in the solver's gauge")
-        return z / n, self.tf / bvp.tau
+        return (z / n, self.tf / bvp.tau, n) if with_norm else (z / n, self.tf / bvp.tau)
 
 
 def from_nondim(bvp, z, T, source, switch_times=None, u_first=None):
