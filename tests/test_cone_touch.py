@@ -207,12 +207,9 @@ def test_structure_read_back_from_the_switching_functions(touch_solutions):
     tp = TouchProblem(bvp, [0])
     tau = bvp.tau
     tm = sol.verification["touch_multipliers"]
-    z, T = Guess(sol.costate0, sol.tf).to_nondim(bvp)
     # the multiplier in the normalisation of z, as solve_touch_guess converts it
-    from slew_env.core.quaternion import qconj, qmul
-    c = np.asarray(sol.costate0)
-    z_raw = np.concatenate([qmul(qconj(bvp.q0), c[:4])[1:4] / tau, c[4:7] / tau ** 2])
-    x = np.concatenate([z, [T], [tm["times"][0] / tau], [tm["multipliers"][0] / (tau * np.linalg.norm(z_raw))]])
+    z, T, nz = Guess(sol.costate0, sol.tf).to_nondim(bvp, with_norm=True)
+    x = np.concatenate([z, [T], [tm["times"][0] / tau], [tm["multipliers"][0] / (tau * nz)]])
     times = np.concatenate([np.asarray(s) / tau for s in sol.switch_times])
     axes = np.concatenate([np.full(len(s), i) for i, s in enumerate(sol.switch_times)]).astype(np.int64)
     order = np.argsort(times)

@@ -204,3 +204,30 @@ def costate_from_canonical(problem, cf: ConeCanonicalForm, z):
     lw = B.T @ z[3:6]
     lq = qmul(np.asarray(problem.q0, float), np.array([0.0, mu[0], mu[1], mu[2]])) * cf.tau
     return np.concatenate([lq, lw * cf.tau ** 2])
+
+
+def solution_to_canonical(problem, cf: ConeCanonicalForm, costate0, tf, switch_times, u_first, touches=()):
+    """A solution in problem units → canonical nondimensional ``(z', |z_raw|, T, switch
+    instants per canonical axis, first-arc signs, touches)``; ``touches``: ``(cone, time,
+    multiplier)`` as ``verification["touch_multipliers"]`` reports them, returned per canonical
+    slot as ``{slot: (instant, ν)}`` with ``ν`` in the normalisation of ``z'``."""
+    z, nz = costate_to_canonical(problem, cf, costate0)
+    sw = [np.sort(np.asarray(switch_times[j], float)) / cf.tau for j in cf.order]
+    uf = np.where(cf.axial @ np.asarray(u_first, float) >= 0, 1.0, -1.0)
+    slot_of = {c: k for k, c in enumerate(cf.slots)}
+    tc = {slot_of[int(c)]: (float(t) / cf.tau, float(m) / (cf.tau * nz)) for c, t, m in touches}
+    return z, nz, float(tf) / cf.tau, sw, uf, tc
+
+
+def solution_from_canonical(problem, cf: ConeCanonicalForm, z, T, switch_times, u_first, touches=()):
+    """Canonical nondimensional ``(z', T, switch instants per canonical axis, first-arc signs,
+    touches [(slot, instant, ν)])`` → problem units: ``(costate0, tf, switch_times, u_first,
+    touches [(cone, time, multiplier)])`` as a ``solvers.Guess`` takes them (``costate0`` in
+    the scale of the unit-norm ``z'``, so a multiplier is ``ν τ``)."""
+    sw = [None] * 3
+    for i, body in enumerate(cf.order):        # canonical axis i is body axis order[i]
+        sw[body] = np.asarray(switch_times[i], float) * cf.tau
+    touches = [(cf.slots[k], float(t) * cf.tau, float(nu) * cf.tau) for k, t, nu in touches]
+    return (costate_from_canonical(problem, cf, z), float(T) * cf.tau, sw, cf.axial.T @ np.asarray(u_first, float),
+            touches)
+

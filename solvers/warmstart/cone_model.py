@@ -32,7 +32,7 @@ import numpy as np
 from slew_env import SlewProblem
 from ..guesses import Guess
 from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason,
-                            costate_from_canonical)
+                            solution_from_canonical)
 from .model import ModelFileError, WarmStartModel
 
 
@@ -121,18 +121,11 @@ class ConeWarmStartModel(WarmStartModel):
         if why:
             return None, why
         z, T, p, tc, nu, uf_c, sw_c = self.predict_canonical(cf.x, cf.T_ref)
-        c0 = costate_from_canonical(problem, cf, z)
-        tf = T * cf.tau
-        # canonical axis i is body axis order[i]; first-arc signs are axial body vectors
-        sw = [None] * 3
-        for i, j in enumerate(cf.order):
-            sw[j] = sw_c[i] * cf.tau
-        uf = cf.axial.T @ uf_c
+        used = range(len(problem.cones))
+        c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, z, T, sw_c, uf_c,
+                                                          [(k, tc[k], nu[k]) for k in used])
         self.last_inference_s = time.perf_counter() - t0
-        used = [k for k in range(len(problem.cones))]
-        # slot k of the canonical form holds problem cone cf.slots[k]; the multiplier in the
-        # scale of c0 (nondimensional norm 1) and problem units is ν τ
-        rows = {k: (cf.slots[k], float(tc[k] * cf.tau), float(nu[k] * cf.tau)) for k in used}
+        rows = dict(zip(used, touches))      # per slot: (problem cone, time, multiplier)
         touched = [k for k in used if p[k] >= 0.5]
         no_touch = Guess(c0, tf, sw, uf, source="learned")
         if touched:

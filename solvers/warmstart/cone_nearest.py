@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from slew_env import SlewProblem
 from ..guesses import Guess
-from .cone_features import cone_canonical_form, cone_unsupported_reason, costate_from_canonical
+from .cone_features import cone_canonical_form, cone_unsupported_reason, solution_from_canonical
 from .model import ModelFileError, read_npz
 from .nearest import NN_FORMAT, NN_FORMAT_VERSION, table_coverage
 
@@ -72,14 +72,11 @@ class ConeNearestNeighbourModel:
         out = None
         for rank, j in enumerate(np.atleast_1d(idx)):
             T = a["T"][j] * cf.T_ref / a["T_ref"][j]
-            sw = [None] * 3
-            for i, body in enumerate(cf.order):
-                f = a["F"][j, i]
-                sw[body] = np.sort(f[np.isfinite(f)]) * T * cf.tau
-            touches = [(cf.slots[k], float(a["frac"][j, k] * T * cf.tau), float(np.exp(a["log_nu"][j, k]) * cf.tau))
+            sw = [np.sort(f[np.isfinite(f)]) * T for f in a["F"][j]]
+            touches = [(k, a["frac"][j, k] * T, np.exp(a["log_nu"][j, k]))
                        for k in range(len(problem.cones)) if a["touch"][j, k] > 0.5]
-            g = Guess(costate_from_canonical(problem, cf, a["Z"][j]), T * cf.tau, sw, cf.axial.T @ a["U"][j],
-                      source=f"nearest-neighbour[{rank}]", touches=touches or None)
+            c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, a["Z"][j], T, sw, a["U"][j], touches)
+            g = Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]", touches=touches or None)
             if out is None:
                 out = g
             else:

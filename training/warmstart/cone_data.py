@@ -19,7 +19,7 @@ import numpy as np
 
 from slew_env import SlewProblem
 from solvers.warmstart.cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form,
-                                             costate_to_canonical)
+                                             solution_to_canonical)
 from solvers.warmstart.cone_model import cone_output_layout, cone_output_size
 from .data import exact_records
 
@@ -33,32 +33,25 @@ def training_arrays(paths, family="pointing-cones", max_switches=5) -> dict:
     for path, r in exact_records(paths, family, counts):
         if r.get("switch_times") is None or r.get("u_first") is None:
             continue
+        tm = (r.get("verification") or {}).get("touch_multipliers") or {"cones": [], "times": [], "multipliers": []}
+        if len(set(tm["cones"])) < len(tm["cones"]):
+            n_double += 1
+            continue
         p = SlewProblem.from_dict(r["problem"])
         cf = cone_canonical_form(p)
-        z, nz = costate_to_canonical(p, cf, r["costate0"])
-        T = float(r["tf"]) / cf.tau
-        tm = (r.get("verification") or {}).get("touch_multipliers")
+        z, _, T, sw, U, tc = solution_to_canonical(p, cf, r["costate0"], r["tf"], r["switch_times"], r["u_first"],
+                                                   zip(tm["cones"], tm["times"], tm["multipliers"]))
         touch = np.zeros(MAX_CONES)
         frac = np.full(MAX_CONES, np.nan)
         lnu = np.full(MAX_CONES, np.nan)
-        if tm:
-            if len(set(tm["cones"])) < len(tm["cones"]):
-                n_double += 1
-                continue
-            slot_of = {c: k for k, c in enumerate(cf.slots)}
-            for c, t, m in zip(tm["cones"], tm["times"], tm["multipliers"]):
-                k = slot_of[int(c)]
-                touch[k] = 1.0
-                frac[k] = float(t) / float(r["tf"])
-                # multiplier in the normalisation of z': ν = m / (τ |z_raw|)
-                lnu[k] = math.log(max(float(m) / (cf.tau * nz), 1e-12))
+        for k, (t, nu) in tc.items():
+            touch[k] = 1.0
+            frac[k] = t / T
+            lnu[k] = math.log(max(nu, 1e-12))
         present = cf.x[9 + 4::5][:MAX_CONES].copy()
-        # switching structure in canonical axes (canonical axis i is body axis order[i])
-        sw = [np.sort(np.asarray(r["switch_times"][j], float)) / cf.tau for j in cf.order]
         if max(len(a) for a in sw) > max_switches:
             n_overflow += 1
             continue
-        U = np.where(cf.axial @ np.asarray(r["u_first"], float) >= 0, 1.0, -1.0)
         S = np.full((3, max_switches), np.nan)
         for i in range(3):
             S[i, :len(sw[i])] = sw[i] / T
