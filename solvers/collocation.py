@@ -1189,6 +1189,16 @@ DEFAULT_INTERVALS = 60
 DEFAULT_INTERVALS_CONES = 80
 
 
+def _check_intervals(N, in_list=False) -> int:
+    """``N`` as an int, or ``ValueError`` naming ``n_intervals``."""
+    if isinstance(N, bool) or not isinstance(N, (int, np.integer)):
+        raise ValueError(f"n_intervals: expected {'integers ≥ 2 in the list' if in_list else 'an integer ≥ 2'}, "
+                         f"got {N!r}")
+    if N < 2:
+        raise ValueError(f"n_intervals: must be at least 2, got {N}")
+    return int(N)
+
+
 def _best_of_meshes(prob, meshes, t_start, **kw) -> SlewSolution:
     """``solve_collocation`` on each mesh in ``meshes``, the fastest verified answer."""
     if not meshes:
@@ -1196,10 +1206,7 @@ def _best_of_meshes(prob, meshes, t_start, **kw) -> SlewSolution:
     if kw.get("mesh") is not None:
         raise ValueError("mesh: a custom mesh fixes N; give one n_intervals with it, not a list")
     for N in meshes:
-        if isinstance(N, bool) or not isinstance(N, (int, np.integer)):
-            raise ValueError(f"n_intervals: expected integers ≥ 2 in the list, got {N!r}")
-        if N < 2:
-            raise ValueError(f"n_intervals: must be at least 2, got {N}")
+        _check_intervals(N, in_list=True)
     budget = kw.pop("time_budget")
     sols = []
     for N in meshes:
@@ -1274,11 +1281,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         return _best_of_meshes(prob, list(n_intervals), t_start, transcription=transcription, guess=guess,
                                tol=tol, max_iter=max_iter, time_budget=time_budget, verbose=verbose,
                                n_starts=n_starts, seed=seed, coarse=coarse, mesh=mesh, tols=tols)
-    if isinstance(n_intervals, bool) or not isinstance(n_intervals, (int, np.integer)):
-        raise ValueError(f"n_intervals: expected an integer ≥ 2, got {n_intervals!r}")
-    if n_intervals < 2:
-        raise ValueError(f"n_intervals: must be at least 2, got {n_intervals}")
-    N = int(n_intervals)
+    N = _check_intervals(n_intervals)
     if transcription not in TRANSCRIPTIONS:
         raise ValueError(f"transcription: unknown transcription {transcription!r}; "
                          f"choose one of {', '.join(TRANSCRIPTIONS)}")
