@@ -102,8 +102,9 @@ indirect solver reports them. Measured accuracy: ``COSTATE_ACCURACY``.
 
 Verification (``SlewSolution.verification``; each ``{value, tol, passed}``)
 --------------------------------------------------------------------------
-An independent re-propagation (scipy ``solve_ivp``, DOP853, ``rtol = 1e-10``,
-``atol = 1e-12``, interval by interval) of the returned control — the piecewise quadratic
+An independent re-propagation (classical RK4, 96 steps an interval, compiled:
+``core.control_replay``; it agrees with scipy's DOP853 at ``rtol = 1e-10`` to ~3e-11) of the
+returned control — the piecewise quadratic
 above (clipped to the bound, a no-op to IPOPT's 1e-8 bound relaxation) — from the start
 state. Checks:
 
@@ -234,16 +235,56 @@ class _Scaled:
 
 
 # ----------------------------------------------------------------------------- cone topology
+def _caps_cannot_separate(cones) -> bool:
+    """True when the union of the cones' closed caps certainly leaves the rest of the sphere
+    connected, so no two free directions are separated (no grid needed).
+
+    Caps narrower than a hemisphere are geodesically convex, so each non-empty intersection
+    of them is contractible and the union has the homotopy type of their nerve (the nerve
+    theorem). If no chain of pairwise-overlapping caps closes a loop (the overlap graph is a
+    forest), the nerve has no 1-cycles, and by Alexander duality the complement of the union
+    is connected. With one or two cones, or three that do not all overlap, this settles it.
+    """
+    if any(c.half_angle >= 0.5 * math.pi for c in cones):
+        return False
+    n = len(cones)
+    parent = list(range(n))
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+    for i in range(n):
+        for j in range(i + 1, n):
+            cosang = float(np.clip(np.dot(cones[i].axis, cones[j].axis), -1.0, 1.0))
+            # closed caps meet when the axes are at most α_i + α_j apart (tangency counts)
+            if math.acos(cosang) <= cones[i].half_angle + cones[j].half_angle + 1e-12:
+                ri, rj = root(i), root(j)
+                if ri == rj:
+                    return False        # a loop of overlapping caps: let the grid decide
+                parent[ri] = rj
+    return True
+
+
 def cones_block_every_path(problem, resolution_deg=0.5):
     """True when the keep-out cones certainly separate the start and target sensor directions.
 
-    Flood fill on a latitude–longitude grid of the sphere. A cell counts as blocked only
+    When no loop of pairwise-overlapping cones exists (``_caps_cannot_separate``, exact for
+    cones narrower than a hemisphere: one or two cones, or three that do not all overlap),
+    nothing is separated and no grid is needed. Otherwise a flood fill on a
+    latitude–longitude grid of the sphere (about 0.1 s). A cell counts as blocked only
     when it lies inside a cone by more than its own radius, so the test is optimistic: a
     gap narrower than the grid is treated as open (IPOPT then decides), and a ``True`` is
     never wrong by more than the resolution.
     """
-    if not problem.cones:
+    if not problem.cones or _caps_cannot_separate(problem.cones):
         return False
+    return _grid_separates(problem, resolution_deg)
+
+
+def _grid_separates(problem, resolution_deg):
+    """The flood fill of ``cones_block_every_path``."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     d = math.radians(resolution_deg)
@@ -958,39 +999,19 @@ class _Replay:
 
 
 def _replay(sc: _Scaled, run: _Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
-    """Independent re-propagation of the interpolated control from the start state,
-    interval by interval (the control is smooth inside each), scipy DOP853."""
-    from scipy.integrate import solve_ivp
+    """Independent re-propagation of the interpolated control from the start state: RK4,
+    ``samples`` steps an interval, where the control is smooth (``core.control_replay``;
+    it agrees with scipy's DOP853 at rtol 1e-10 to ~3e-11)."""
+    from .core.control_replay import replay_quadratic_control
     T, X, Xm, U, Um = run.nlp.unpack(run.w)
     tk, _ = run.nlp.times(T)
     u_of = _interp_control(U, Um, tk, sc)
-    J = sc.J
-    x = sc.x0.copy()
-    ts, xs = [np.array([0.0])], [x[None, :].copy()]
-    nf = 0
-    for k in range(len(tk) - 1):
-        a, b = tk[k], tk[k + 1]
-        Uk, Umk, Uk1 = U[k], Um[k], U[k + 1]
-
-        def rhs(t, y, a=a, b=b, Uk=Uk, Umk=Umk, Uk1=Uk1):
-            s = (t - a) / (b - a)
-            u = 2.0 * (s - 0.5) * (s - 1.0) * Uk - 4.0 * s * (s - 1.0) * Umk + 2.0 * s * (s - 0.5) * Uk1
-            if math.isinf(sc.p):
-                u = np.minimum(np.maximum(u, -sc.U), sc.U)
-            else:
-                n = float(np.sum(np.abs(u / sc.U) ** sc.p)) ** (1.0 / sc.p)
-                if n > 1.0:
-                    u = u / n
-            return state_rhs(y, u, J)
-        sol = solve_ivp(rhs, (a, b), x, method="DOP853", rtol=1e-10, atol=1e-12, dense_output=True)
-        nf += int(sol.nfev)
-        if not sol.success:
-            return _Replay(None, None, nf, str(sol.message), u_of)
-        tt = np.linspace(a, b, samples + 1)[1:]
-        ts.append(tt)
-        xs.append(sol.sol(tt).T)
-        x = sol.y[:, -1].copy()
-    return _Replay(np.concatenate(ts), np.vstack(xs), nf, "", u_of)
+    t, x, nf = replay_quadratic_control(np.asarray(sc.x0, float), np.asarray(tk, float), np.asarray(U, float),
+                                        np.asarray(Um, float), np.asarray(sc.U, float), float(sc.p),
+                                        np.asarray(sc.J, float), int(samples), 1)
+    if not np.all(np.isfinite(x)):
+        return _Replay(None, None, int(nf), "the re-propagated state is not finite", u_of)
+    return _Replay(t, x, int(nf), "", u_of)
 
 
 def _switches(t, u, U):

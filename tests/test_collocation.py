@@ -14,7 +14,8 @@ import solvers
 from slew_env import Cone, SlewProblem
 from slew_env.core import quat_from_euler321_deg
 from slew_env.core.dynamics import state_rhs
-from solvers.collocation import (DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, cones_block_every_path,
+from solvers.collocation import (DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, _caps_cannot_separate,
+                                 _grid_separates,                                  cones_block_every_path,
                                  solve_collocation)
 from solvers.guesses import Guess
 from reference_cases import melton
@@ -261,6 +262,32 @@ def test_cones_that_block_every_path():
     # the same belt with 2° gaps is passable
     open_belt = [Cone(c.axis, half_angle_deg=29) for c in belt]
     assert not cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=open_belt))
+
+
+def test_three_cones_ringing_the_start_block_every_path():
+    # three 28° cones 30° off the start direction: pairwise they overlap (axes 51.3° apart),
+    # but no point lies in all three, so they ring the start; the overlap graph has a loop
+    ring = [Cone([math.cos(math.radians(30)), math.sin(math.radians(30)) * math.cos(a),
+                  math.sin(math.radians(30)) * math.sin(a)], half_angle_deg=28) for a in np.arange(3) * 2 * math.pi / 3]
+    assert not _caps_cannot_separate(ring)
+    assert cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=ring))
+    # at 25° they no longer meet: the quick test settles it without the grid
+    loose = [Cone(c.axis, half_angle_deg=25) for c in ring]
+    assert _caps_cannot_separate(loose)
+    assert not cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=loose))
+
+
+def test_quick_separation_test_agrees_with_the_grid():
+    from slew_env import TaskDistribution
+    dist = TaskDistribution.family("pointing-cones", cone_half_angle_deg=(10.0, 60.0))
+    quick = 0
+    for i in range(40):
+        p = dist.sample(np.random.default_rng([7, i]))
+        if _caps_cannot_separate(p.cones):
+            quick += 1
+            # the grid alone (the quick test bypassed) must agree that nothing is separated
+            assert not _grid_separates(p, 0.5)
+    assert quick >= 20
 
 
 def test_start_or_target_inside_a_cone_is_rejected_by_the_problem():

@@ -1,0 +1,87 @@
+"""Re-propagation of a collocation answer's control model (compiled).
+
+The collocation control is, on each interval ``[t_k, t_k+1]``, the quadratic through the
+node, midpoint and node controls, clipped to the torque bound. ``replay_quadratic_control``
+integrates the rigid body under it with classical RK4, ``samples × substeps`` steps an
+interval (the control is smooth inside an interval, so RK4 keeps its fourth order), and
+returns the state at ``samples`` evenly spaced instants of each interval. It is the
+verification's independent re-propagation: it shares nothing with the NLP's
+Hermite–Simpson scheme but the dynamics.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from slew_env.core.dynamics import state_rhs_scalar
+
+
+@njit(cache=True)
+def quadratic_control(s, Uk, Um, Uk1, Ulim, p):
+    """The interval's control at fraction ``s`` ∈ [0, 1], clipped to the bound (per-axis
+    box for ``p = inf``, else the p-norm ball scaled by ``Ulim``)."""
+    l0 = 2.0 * (s - 0.5) * (s - 1.0)
+    l1 = -4.0 * s * (s - 1.0)
+    l2 = 2.0 * s * (s - 0.5)
+    u0 = l0 * Uk[0] + l1 * Um[0] + l2 * Uk1[0]
+    u1 = l0 * Uk[1] + l1 * Um[1] + l2 * Uk1[1]
+    u2 = l0 * Uk[2] + l1 * Um[2] + l2 * Uk1[2]
+    if math.isinf(p):
+        u0 = min(max(u0, -Ulim[0]), Ulim[0])
+        u1 = min(max(u1, -Ulim[1]), Ulim[1])
+        u2 = min(max(u2, -Ulim[2]), Ulim[2])
+    else:
+        n = (abs(u0 / Ulim[0]) ** p + abs(u1 / Ulim[1]) ** p + abs(u2 / Ulim[2]) ** p) ** (1.0 / p)
+        if n > 1.0:
+            u0 /= n
+            u1 /= n
+            u2 /= n
+    return u0, u1, u2
+
+
+@njit(cache=True)
+def _deriv(x, s, Uk, Um, Uk1, Ulim, p, J):
+    u0, u1, u2 = quadratic_control(s, Uk, Um, Uk1, Ulim, p)
+    return state_rhs_scalar(x[0], x[1], x[2], x[3], x[4], x[5], x[6], u0, u1, u2, J[0], J[1], J[2])
+
+
+@njit(cache=True)
+def replay_quadratic_control(x0, tk, U, Um, Ulim, p, J, samples, substeps):
+    """``(t, X, n_rhs)``: ``t`` (N·samples + 1,), ``X`` (N·samples + 1, 7) from ``x0`` at
+    ``tk[0]`` over the ``N = len(tk) - 1`` intervals; ``U`` (N + 1, 3) node controls, ``Um``
+    (N, 3) midpoint controls."""
+    N = tk.shape[0] - 1
+    t = np.empty(N * samples + 1)
+    X = np.empty((N * samples + 1, 7))
+    x = x0.copy()
+    y = np.empty(7)
+    t[0] = tk[0]
+    X[0] = x
+    row = 1
+    n = 0
+    for k in range(N):
+        a, b = tk[k], tk[k + 1]
+        L = b - a
+        m = samples * substeps
+        dh = 1.0 / m
+        for j in range(m):
+            s = j * dh
+            k1 = _deriv(x, s, U[k], Um[k], U[k + 1], Ulim, p, J)
+            for i in range(7):
+                y[i] = x[i] + 0.5 * L * dh * k1[i]
+            k2 = _deriv(y, s + 0.5 * dh, U[k], Um[k], U[k + 1], Ulim, p, J)
+            for i in range(7):
+                y[i] = x[i] + 0.5 * L * dh * k2[i]
+            k3 = _deriv(y, s + 0.5 * dh, U[k], Um[k], U[k + 1], Ulim, p, J)
+            for i in range(7):
+                y[i] = x[i] + L * dh * k3[i]
+            k4 = _deriv(y, s + dh, U[k], Um[k], U[k + 1], Ulim, p, J)
+            for i in range(7):
+                x[i] += L * dh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            n += 4
+            if (j + 1) % substeps == 0:
+                t[row] = a + (j + 1) * dh * L
+                X[row] = x
+                row += 1
+        t[row - 1] = b
+    return t, X, n
