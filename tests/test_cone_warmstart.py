@@ -213,6 +213,10 @@ def test_cone_training_arrays_and_a_short_training_run(tmp_path):
     g, why = m.guess_or_reason(TOUCH)
     assert why is None and g.tf > 0
     assert json.loads(open(tmp_path / "run" / "summary.json").read())["n_exact_solutions"] == a["X"].shape[0]
+    # the neighbour table of the same exact solutions goes next to the model, compact
+    table = load_model(s["table"])
+    assert s["table"] == str(tmp_path / "run" / "model.nn.npz") and table.a["X"].shape == a["X"].shape
+    np.testing.assert_allclose(table.a["X"], a["X"], rtol=1e-6, atol=1e-7)
 
 
 def test_cone_nearest_neighbour_table_round_trip_and_guess(tmp_path):
@@ -246,9 +250,10 @@ def test_cone_nearest_neighbour_table_round_trip_and_guess(tmp_path):
 # --------------------------------------------------------------------------- the shipped model
 def test_shipped_cone_model_is_opt_in():
     from solvers.warmstart import DEFAULT_CONE_MODEL_FILE, default_cone_model
+    from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
     m = default_cone_model()
-    assert isinstance(m, ConeWarmStartModel) and m.path == DEFAULT_CONE_MODEL_FILE
-    t = m.card["training"]
+    assert isinstance(m, ConeEnsembleWarmStart) and m.network.path == DEFAULT_CONE_MODEL_FILE
+    t = m.network.card["training"]
     assert t["family"] == "pointing-cones" and t["n_records"] >= 5000 and t["n_exact_solutions"] >= 5000
     assert m.covers(TOUCH) is None
     # by default a cone problem gets no learned guess, and says why
@@ -259,3 +264,49 @@ def test_shipped_cone_model_is_opt_in():
     assert sol.success and sol.exact
     assert sol.warm_start["model"] == m.name and sol.warm_start["covered"] is True
     assert sol.tf == pytest.approx(plain.tf, rel=1e-6)
+
+
+def test_shipped_cone_warm_start_tries_the_table_then_the_network():
+    from solvers.warmstart import DEFAULT_CONE_TABLE_FILE, default_cone_model
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    m = default_cone_model()
+    assert isinstance(m.table, ConeNearestNeighbourModel) and m.table.a["X"].shape[0] >= 5000
+    with np.load(DEFAULT_CONE_TABLE_FILE) as d:          # shipped compact
+        assert d["X"].dtype == np.float32 and d["Z"].dtype == np.float32
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None
+    sources = [c.source for c in g.all()]
+    assert sources[:4] == [f"nearest-neighbour[{k}]" for k in range(4)]
+    assert set(sources[4:]) <= {"learned", "learned-touch"} and len(sources) >= 5
+    assert all(not c.candidates for c in g.all()[1:])
+    assert "4 nearest of" in m.name
+    assert "cones" in m.covers(SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=[0.0, 1.0, 0.0]))
+    with pytest.raises(ValueError, match="^model: the ensemble needs"):
+        type(m)(m.table, m.network)
+
+
+@pytest.mark.parametrize("j", [1, 2])
+def test_a_tabled_problem_converges_from_its_own_solution(j):
+    # the table's problem j, rebuilt from its canonical features (τ = 1): its own stored
+    # solution is the first candidate and converges to it (record 1 touches a cone, 2 does not)
+    from solvers.warmstart import default_cone_model
+    from solvers.warmstart.cone_features import canonical_problem
+    table = default_cone_model().table
+    assert (table.a["touch"][j].sum() > 0) == (j == 1)
+    p = canonical_problem(table.a["X"][j])
+    sol = solve(p, warm_start="pointing-cones")
+    assert sol.success and sol.exact and sol.guess == "nearest-neighbour[0]"
+    assert sol.warm_start["succeeded"] and sol.warm_start["candidates"] == 1
+    assert sol.tf == pytest.approx(float(table.a["T"][j]), rel=1e-6)
+
+
+def test_canonical_problem_round_trip():
+    from solvers.warmstart.cone_features import canonical_problem
+    cf = cone_canonical_form(TOUCH)
+    p = canonical_problem(cf.x)
+    back = cone_canonical_form(p)
+    np.testing.assert_allclose(back.x, cf.x, atol=1e-12)
+    np.testing.assert_array_equal(back.A, np.eye(3))
+    assert back.tau == pytest.approx(1.0) and len(p.cones) == len(TOUCH.cones)
+    with pytest.raises(ValueError, match="^x: expected 24 canonical features"):
+        canonical_problem(cf.x[:10])

@@ -5,7 +5,9 @@ import os
 
 
 def add_arguments(p):
-    p.add_argument("--model", default=None, help="model file (default: the shipped model)")
+    p.add_argument("--model", default=None,
+                   help="model file, or a shipped model by name: default (full attitude), pointing-cones (the "
+                        "network with its neighbour table); default: the shipped full-attitude model")
     p.add_argument("--family", default="full-attitude", help="task family of the held-out problems")
     p.add_argument("--n", type=int, default=1000, help="held-out problems (default 1000)")
     p.add_argument("--seed", type=int, default=20261122, help="seed of the held-out problems (fresh: not a data seed)")
@@ -16,7 +18,7 @@ def add_arguments(p):
     p.add_argument("--budget", type=float, default=5.0,
                    help="time budget of a classical guess (eigenaxis, random), seconds (default 5)")
     p.add_argument("--warm-budget", type=float, default=None,
-                   help="time budget of a model's candidates, seconds (default: solve()'s, 1; 0.1 with cones)")
+                   help="time budget of a model's candidates, seconds (default: solve()'s, 1; 0.2 with cones)")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     p.add_argument("--out", "-o", default="runs/evaluate", help="output directory (report.md, results.jsonl, evaluation.png)")
     p.add_argument("--no-progress", action="store_true")

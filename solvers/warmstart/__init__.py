@@ -19,6 +19,8 @@ MODELS_DIR = os.path.join(os.path.dirname(__file__), "models")
 DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
 # the shipped model for pointing-only slews with keep-out cones (used by default when present)
 DEFAULT_CONE_MODEL_FILE = os.path.join(MODELS_DIR, "pointing-cones.npz")
+# its table of solved problems, whose nearest solutions are tried before the network's guess
+DEFAULT_CONE_TABLE_FILE = os.path.join(MODELS_DIR, "pointing-cones.nn.npz")
 
 
 def load_model(path):
@@ -49,10 +51,21 @@ def default_model() -> WarmStartModel:
 
 
 def default_cone_model():
-    """The shipped pointing-cones model (loaded once per process), or ``None`` if none is shipped."""
+    """The shipped pointing-cones warm start (loaded once per process): the neighbour table
+    and the network (``cone_ensemble``), or the network alone if no table is shipped, or
+    ``None`` if no model is shipped."""
     if not os.path.exists(DEFAULT_CONE_MODEL_FILE):
         return None
-    return load_model(DEFAULT_CONE_MODEL_FILE)
+    network = load_model(DEFAULT_CONE_MODEL_FILE)
+    if not os.path.exists(DEFAULT_CONE_TABLE_FILE):
+        return network
+    return _cone_ensemble(network, load_model(DEFAULT_CONE_TABLE_FILE))
+
+
+@functools.lru_cache(maxsize=2)
+def _cone_ensemble(network, table):
+    from .cone_ensemble import ConeEnsembleWarmStart
+    return ConeEnsembleWarmStart(network, table)
 
 
 class _ConeModelOptIn:
@@ -96,4 +109,5 @@ def resolve(warm_start, problem=None):
 __all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "features",
            "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
            "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
-           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_CONE_MODEL_FILE", "default_cone_model"]
+           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
+           "default_cone_model"]

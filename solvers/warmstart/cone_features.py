@@ -178,6 +178,20 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
     return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(r[1] for r in cones))
 
 
+def canonical_problem(x) -> SlewProblem:
+    """The problem whose canonical features are ``x``: start attitude the identity, sensor
+    ``+x``, target ``d'``, inertia ``J'``, bound ``u'`` (so ``τ = 1``: its times are the
+    canonical nondimensional ones), the cones of the present slots in slot order."""
+    x = np.asarray(x, float)
+    if x.shape != (N_CONE_FEATURES,):
+        raise ValueError(f"x: expected {N_CONE_FEATURES} canonical features, got shape {x.shape}")
+    from slew_env import Cone
+    cones = [Cone(x[9 + 5 * k:12 + 5 * k], half_angle=float(x[12 + 5 * k]))
+             for k in range(MAX_CONES) if x[13 + 5 * k] > 0.5]
+    return SlewProblem(inertia=x[3:6], torque_max=x[6:9], torque_norm="inf", q0=[1.0, 0.0, 0.0, 0.0],
+                       sensor_axis=[1.0, 0.0, 0.0], sensor_target=x[0:3], cones=cones)
+
+
 def cone_features(problem) -> np.ndarray:
     return cone_canonical_form(problem).x
 

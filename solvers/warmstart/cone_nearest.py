@@ -49,10 +49,16 @@ class ConeNearestNeighbourModel:
         except KeyError as e:
             raise ModelFileError(f"model: {path} lacks the array {e}") from None
 
-    def save(self, path):
+    def save(self, path, compact=False):
+        """``compact``: float32 arrays, compressed (a shipped table; Newton polishes the
+        neighbour's solution anyway)."""
         card = {"format": NN_FORMAT, "format_version": NN_FORMAT_VERSION, "kind": self.KIND, "k": self.k,
                 "domain": self.domain, "name": self.name}
-        np.savez(path, **self.a, card=np.array(json.dumps(card)))
+        if compact:
+            np.savez_compressed(path, **{key: v.astype(np.float32) for key, v in self.a.items()},
+                                card=np.array(json.dumps(card)))
+        else:
+            np.savez(path, **self.a, card=np.array(json.dumps(card)))
 
     def covers(self, problem):
         problem = SlewProblem.from_dict(problem)
@@ -61,14 +67,15 @@ class ConeNearestNeighbourModel:
             why = "cones: the table holds problems with 1–3 cones"
         return why
 
-    def guess(self, problem) -> Guess:
+    def guess(self, problem, k=None) -> Guess:
+        """The solutions of the ``k`` (default ``self.k``) nearest problems, nearest first."""
         problem = SlewProblem.from_dict(problem)
         why = self.covers(problem)
         if why:
             raise ValueError(f"problem not covered by {self.name}: {why}")
         cf = cone_canonical_form(problem)
         a = self.a
-        _, idx = self.tree.query(cf.x / self.scale, k=min(self.k, a["X"].shape[0]))
+        _, idx = self.tree.query(cf.x / self.scale, k=min(int(k or self.k), a["X"].shape[0]))
         out = None
         for rank, j in enumerate(np.atleast_1d(idx)):
             T = a["T"][j] * cf.T_ref / a["T_ref"][j]

@@ -35,9 +35,23 @@ GUESSES = ("learned", "nearest-neighbour", "eigenaxis", "random", "collocation",
 _W = {}
 
 
+SHIPPED = ("default", "pointing-cones")
+
+
+def _model(model_path):
+    """A model file, or a shipped model by name (``"pointing-cones"``: the network with its
+    neighbour table, as ``solve(..., warm_start="pointing-cones")`` uses it)."""
+    from solvers import warmstart
+    if not model_path or model_path == "default":
+        return warmstart.default_model()
+    if model_path in SHIPPED:
+        return warmstart.resolve(model_path)
+    return warmstart.load_model(model_path)
+
+
 def _init(model_path, nn_path):
     from solvers import warmstart
-    _W["model"] = warmstart.load_model(model_path) if model_path else warmstart.default_model()
+    _W["model"] = _model(model_path)
     _W["nn"] = warmstart.load_model(nn_path) if nn_path else None
 
 
@@ -96,7 +110,13 @@ def inference_time(model, family, seed, n=200):
     from solvers.warmstart.cone_model import ConeWarmStartModel
     from solvers.warmstart.features import canonical_form
     from training.generate import GenerationSpec, problem_for
-    if isinstance(model, ConeWarmStartModel):
+    from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
+    if isinstance(model, ConeEnsembleWarmStart):
+        def infer(p):      # the table's neighbours and the network's outputs
+            cf = cone_canonical_form(p)
+            model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
+            model.network.predict_canonical(cf.x, cf.T_ref)
+    elif isinstance(model, ConeWarmStartModel):
         def infer(p):
             cf = cone_canonical_form(p)
             model.predict_canonical(cf.x, cf.T_ref)
@@ -139,14 +159,14 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
              baseline_n=100, workers=None, budget=5.0, progress_bar=True, warm_budget=None) -> dict:
     """See the module docstring. ``budget``: seconds per classical guess (eigenaxis, random);
     ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s, or
-    0.1 s for the pointing-cones family)."""
+    0.2 s for the pointing-cones family, each candidate capped at ``solvers.api.CONE_CANDIDATE_CAP``)."""
     from solvers.api import CONE_WARM_BUDGET, WARM_BUDGET
     if warm_budget is None:
         warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
     warm_budget = float(warm_budget)
     from solvers import warmstart
     os.makedirs(out, exist_ok=True)
-    model = warmstart.load_model(model_path) if model_path else warmstart.default_model()
+    model = _model(model_path)
     nn_path = None
     if train_data:
         nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"), family=family)
@@ -180,7 +200,8 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
     summary = summarise(rows)
     summary["inference_s_median"] = t_inference
     summary.update(family=family, n=n, seed=seed, baseline_n=min(baseline_n, n), budget_s=budget, warm_budget_s=warm_budget,
-                   model=getattr(model, "path", None) or model_path or warmstart.DEFAULT_MODEL_FILE,
+                   model=getattr(model, "path", None) or getattr(model, "name", None) or model_path
+                   or warmstart.DEFAULT_MODEL_FILE,
                    train_data=[os.fspath(p) for p in (train_data or [])], workers=workers)
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)

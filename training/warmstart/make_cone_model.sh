@@ -16,14 +16,18 @@ slew generate --family pointing-cones --n 6000 --seed 31 -o runs/data/pointing-c
 slew generate --family pointing-cones --n 3000 --seed 32 -o runs/data/pointing-cones-touch-s32.jsonl --workers 2
 slew generate --family pointing-cones --n 2000 --seed 33 -o runs/data/pointing-cones-touch-s33.jsonl --workers 2
 
-# 3. the network (exact answers only), exported for numpy inference
+# 3. the network (exact answers only), exported for numpy inference, and next to it the table of
+#    the same exact solutions (pointing-cones.nn.npz, float32) whose nearest neighbours the
+#    shipped warm start tries before the network's guess (solvers/warmstart/cone_ensemble.py)
 slew train --config training/warmstart/configs/pointing-cones.yaml \
     --data runs/data/pointing-cones-touch-s31.jsonl runs/data/pointing-cones-touch-s32.jsonl \
            runs/data/pointing-cones-touch-s33.jsonl \
     --out runs/ws-cones-final --seed 0 --export solvers/warmstart/models/pointing-cones.npz
 
-# 4. the evaluation in docs/WARMSTART.md (held-out problems of a fresh seed)
-slew evaluate --family pointing-cones --model solvers/warmstart/models/pointing-cones.npz \
+# 4. the evaluation in docs/WARMSTART.md (held-out problems of a fresh seed): the shipped warm
+#    start (table, then network); --model solvers/warmstart/models/pointing-cones.npz evaluates
+#    the network alone
+slew evaluate --family pointing-cones --model pointing-cones \
     --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones \
     --train-data runs/data/pointing-cones-touch-s31.jsonl runs/data/pointing-cones-touch-s32.jsonl \
     runs/data/pointing-cones-touch-s33.jsonl

@@ -208,9 +208,29 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     }
     path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
     summary = dict(card_training, model=path, run_dir=out)
+    if _is_cones(cfg):
+        # the shipped pointing-cones warm start tries the nearest solved problems first
+        # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
+        summary["table"] = export_cone_table(data_paths, cone_table_path(path), int(cfg["max_switches"]))
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     return summary
+
+
+def cone_table_path(model_path):
+    """Where the neighbour table of a pointing-cones model lives: ``NAME.nn.npz`` next to ``NAME.npz``."""
+    return os.path.splitext(os.fspath(model_path))[0] + ".nn.npz"
+
+
+def export_cone_table(data_paths, path, max_switches, k=4):
+    """The exact solutions of ``data_paths`` as a compact nearest-neighbour table (float32,
+    compressed; ``solvers.warmstart.cone_nearest``)."""
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    from .cone_data import training_arrays
+    a = training_arrays(data_paths, max_switches=max_switches)
+    table = ConeNearestNeighbourModel(a, k=k, name=f"pointing-cones solutions ({a['X'].shape[0]:,} exact)")
+    table.save(path, compact=True)
+    return path
 
 
 def export(net, cfg, x_mean, x_std, training_info, path):

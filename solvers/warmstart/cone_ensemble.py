@@ -1,0 +1,98 @@
+"""The shipped warm start for pointing slews with keep-out cones: the exact solutions of the
+nearest solved problems first, then the network's guess.
+
+Measured on held-out problems (docs/WARMSTART.md): the pointing-cones network's guess alone
+converges less often than the solution of a nearby solved problem. A neighbour's solution is
+*self-consistent* — its costates, switching structure, switch instants and touches belong to
+one extremal — while the network regresses each of them separately, and the switch-time
+Newton of ``solvers.cone_touch`` is far more sensitive to wrong switch instants than to wrong
+costates (on 40 held-out problems with exact answers: with the true switching structure and
+touches, 34 of the network's costate guesses converge; with its own, 10). So the candidates are, in order: the solutions of the
+``n_neighbours`` nearest problems of the table (``cone_nearest``, mapped to this problem's
+axes and cones), then the network's guess and its variants (``cone_model``). The solver tries
+them one by one, each under a short time cap (``solvers.api.CONE_CANDIDATE_CAP``).
+
+Files: the network ``pointing-cones.npz`` and the table ``pointing-cones.nn.npz`` next to it
+(both made by ``slew train --config training/warmstart/configs/pointing-cones.yaml --export``).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from slew_env import SlewProblem
+
+
+class ConeEnsembleWarmStart:
+    """Neighbour solutions, then the network's guess (module docstring)."""
+
+    KIND = "pointing-cones-ensemble"
+
+    def __init__(self, network, table, n_neighbours=4):
+        from .cone_model import ConeWarmStartModel
+        from .cone_nearest import ConeNearestNeighbourModel
+        if not isinstance(network, ConeWarmStartModel) or not isinstance(table, ConeNearestNeighbourModel):
+            raise ValueError("model: the ensemble needs a pointing-cones network (ConeWarmStartModel) and a "
+                             f"pointing-cones table (ConeNearestNeighbourModel), got {type(network).__name__} and "
+                             f"{type(table).__name__}")
+        if int(n_neighbours) < 1:
+            raise ValueError(f"n_neighbours: must be ≥ 1, got {n_neighbours}")
+        self.network, self.table = network, table
+        self.n_neighbours = int(n_neighbours)
+        n = int(table.a["X"].shape[0])
+        self.name = f"pointing-cones ({self.n_neighbours} nearest of {n:,} solutions, then the network)"
+        self.domain = network.domain
+        self.last_inference_s = float("nan")
+        self._warm = False
+
+    def warm_up(self):
+        """Load the solver's compiled kernels once per process, by solving a tabled problem from
+        its own solution (about 0.5 s the first time, nothing after). Without it the first
+        candidates of a process's first solve spend their time caps loading compiled code."""
+        if self._warm:
+            return 0.0
+        from ..cone_touch import solve_touch_guess
+        from .cone_features import canonical_problem, solution_from_canonical, cone_canonical_form
+        t0 = time.perf_counter()
+        self._warm = True
+        a = self.table.a
+        rows = np.flatnonzero(a["touch"].sum(axis=1) > 0)
+        if rows.size:
+            j = int(rows[0])
+            try:
+                p = canonical_problem(a["X"][j])
+                g = self.table.guess(p, k=1)
+                solve_touch_guess(p, g, time_budget=5.0, smoothing=False)
+            except ValueError:
+                pass        # a warm-up only: any answer (or none) loads the kernels
+        return time.perf_counter() - t0
+
+    def covers(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        why, _ = self.network._coverage(problem)
+        return why or self.table.covers(problem)
+
+    def guess_or_reason(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        t0 = time.perf_counter()
+        why = self.table.covers(problem)
+        if why:
+            return None, why
+        g_net, why = self.network.guess_or_reason(problem)
+        if why:
+            return None, why
+        cands = self.table.guess(problem, k=self.n_neighbours).all() + g_net.all()
+        for g in cands:
+            g.candidates = []
+        first = cands[0]
+        first.candidates = cands[1:]
+        first.touch_probabilities = getattr(g_net, "touch_probabilities", None)
+        self.last_inference_s = time.perf_counter() - t0
+        return first, None
+
+    def guess(self, problem):
+        g, why = self.guess_or_reason(problem)
+        if why:
+            raise ValueError(f"problem not covered by {self.name}: {why}")
+        return g
