@@ -11,6 +11,7 @@ shooting), directly and, if that fails, by norm continuation from p = 2.
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass, field
@@ -226,9 +227,25 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem):
         sw = [np.zeros(0)] * 3
         u_first = np.sign(u[0])
 
+        # the control is a smooth function of λω but may turn sharply (it reverses where λω
+        # passes through zero: the 2-norm eigenaxis slew at tf/2), so it is not interpolated
+        # between samples: the extremal is propagated from the last sample before t (the same
+        # flow; a frozen copy, so later changes of the solver's mode cannot affect it)
+        flow = copy.copy(bvp)
+        ts, ys = tr.t.copy(), tr.y.copy()
+
         def control(tq):
             tq = np.asarray(tq, dtype=float)
-            return np.stack([np.interp(tq, t, u[:, i]) for i in range(3)], axis=-1)
+            flat = np.atleast_1d(tq).ravel()
+            out = np.empty((flat.size, 3))
+            for n, tt in enumerate(flat):
+                sq = min(max(float(tt) / tau, 0.0), float(ts[-1]))
+                k = max(0, int(np.searchsorted(ts, sq, side="right")) - 1)
+                y = ys[k]
+                if sq > ts[k]:
+                    y = flow._run(y.copy(), sq - float(ts[k]), None)[0][:af.NY]
+                out[n] = af.control(y, flow.J, flow.umax, flow.mode, flow.p, flow.eps, tr.signs0)[0] * umax0
+            return out.reshape(tq.shape + (3,))
     # tolerance of tf: the boundary errors and the independent replay bound how far the
     # extremal is from reaching the target; tf is known to that order (relative), and never
     # better than the integrator's 1e-10
