@@ -126,11 +126,14 @@ Collocation is approximate, so the boundary tolerances are looser than the indir
 solver's 1e-8: ``1e-4`` rad and ``1e-4`` (nondimensional rate) at N = 60, scaled by
 ``(60 / N)²``, never below 1e-6 (measured: 3e-7 on R3, 2e-6 on R5, 5e-7 on R4 at N = 60).
 
-Status: ``success`` only when IPOPT reports ``Solve_Succeeded`` on the final grid and every
-check passes (else 1, not converged; 2, a check failed; 3, budget). A rest-to-rest
-full-attitude answer without cones that is slower than the eigenaxis slew (beyond
-``tf_tol``) — or, for a per-axis bound, no faster than it (within 0.1 %) — is a local
-optimum or the symmetric stationary point: status 4, never success.
+Status: ``success`` only when IPOPT reports ``Solve_Succeeded`` (or
+``Solved_To_Acceptable_Level``, constraints within 1e-6: degenerate NLPs with singular arcs
+stop there) on the final grid and every check passes (else 1, not converged; 2, a check
+failed; 3, budget). A rest-to-rest full-attitude answer without cones that is slower than the
+eigenaxis slew (beyond ``tf_tol``) is a local optimum: status 4, never success. For a
+per-axis bound, one no faster than it (within 0.1 %) is taken for the symmetric stationary
+point (status 4) unless at least two symmetry-breaking (perturbed) starts converged and
+agree: small slews are within 0.1 % of the eigenaxis slew.
 
 Per-axis bound: ``switch_times`` are the zero crossings of the collocated torque between
 clearly saturated samples (``|u_i| ≥ 0.5 u_max,i``), by linear interpolation: approximate,
@@ -196,6 +199,9 @@ COSTATE_ACCURACY = {
 # IPOPT iterations allowed to one start on the coarse grid (a start that needs more is
 # not worth refining; converged coarse solves take 20-200)
 _COARSE_MAX_ITER = 200
+# IPOPT statuses taken as converged: "acceptable" is a solve that met the (looser) acceptable
+# tolerances, with constraints to 1e-6; the independent replay then decides
+CONVERGED_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 _P_SMOOTH_DELTA = 1e-10
 # re-propagation samples per interval: dense enough for the certified clearance's
 # second-order bound to stay within 1e-7 rad of the sampled margin
@@ -548,7 +554,10 @@ class _Template:
         self.deadline = _Deadline(ca, nx, self.ng, self.n_par)
         opts = {"ipopt.tol": tol, "ipopt.max_iter": int(max_iter), "ipopt.print_level": 5 if verbose else 0,
                 "print_time": bool(verbose), "ipopt.sb": "yes", "ipopt.constr_viol_tol": min(1e-8, tol),
-                "ipopt.mu_strategy": "adaptive", "iteration_callback": self.deadline.cb}
+                "ipopt.mu_strategy": "adaptive", "iteration_callback": self.deadline.cb,
+                # an "acceptable" stop (degenerate NLPs: singular arcs, where a slack axis's
+                # torque is not unique) must still be feasible; the replay verifies it
+                "ipopt.acceptable_constr_viol_tol": 1e-6}
         self.solver = ca.nlpsol("colloc", "ipopt", {"x": w, "p": P, "f": T, "g": gall}, opts)
 
 
@@ -672,7 +681,7 @@ class _NLP:
         nit = int(st.get("iter_count", 0))
         nfev = int(st.get("n_call_nlp_g", nit + 1))
         return _Run(float(w[0]), w, np.asarray(r["lam_g"]).ravel(), status,
-                    bool(st.get("success", False)) and status == "Solve_Succeeded", nit, nfev, self, source,
+                    bool(st.get("success", False)) and status in CONVERGED_STATUSES, nit, nfev, self, source,
                     delta)
 
     def g(self, w, delta=0.0):
@@ -1474,8 +1483,12 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         # per-axis bound: an answer no faster than the eigenaxis slew is, in practice, the
         # eigenaxis slew itself — a stationary point that IPOPT cannot leave when the guess
         # has the symmetry of a slew about a principal axis (R5 from its plain eigenaxis
-        # guess); precession makes per-axis optima 5-20 % faster
-        saddle = math.isinf(sc.p) and fields["tf"] >= baseline * (1 - 1e-3)
+        # guess); precession makes per-axis optima 5-20 % faster. Perturbed starts break that
+        # symmetry: when at least two of them converge and none beats it by 0.1 %, the optimum
+        # is that close to the eigenaxis slew (small slews, where the two agree to first order)
+        escaped = sum(1 for r in conv1 if r.source.endswith("perturbed"))
+        near = fields["tf"] >= baseline * (1 - 1e-3)
+        saddle = math.isinf(sc.p) and near and escaped < 2
         if slower or saddle:
             what = ("slower than" if slower else "no faster than")
             return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
@@ -1483,7 +1496,10 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
                                 f"{fields['tf']:.9g} is {what} the eigenaxis slew {baseline:.9g}"
                                 + ("" if slower else " (a stationary point held by symmetry, typically; "
                                    "try more starts, n_starts)") + f".{local}", **kw)
-    msg = "Collocation NLP solved (IPOPT Solve_Succeeded) and verified by re-propagation."
+    msg = f"Collocation NLP solved (IPOPT {best.status}) and verified by re-propagation."
+    if not prob.cones and math.isfinite(baseline) and math.isinf(sc.p) and near:
+        msg += (f" Within 0.1 % of the eigenaxis slew ({baseline:.9g}), as {escaped} symmetry-breaking starts "
+                "agree: the slew is small enough for the two to agree to first order.")
     if len(cands) > 1:
         msg += f" Best of {len(cands)} refined local optima (final times {cands})."
     msg += local

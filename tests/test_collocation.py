@@ -337,3 +337,28 @@ def test_best_of_several_meshes_keeps_the_fastest_verified_answer():
         solve_collocation(TOUCH, n_intervals=[40, 1])
     with pytest.raises(ValueError, match="n_intervals: expected integers"):
         solve_collocation(TOUCH, n_intervals=[40, "80"])
+
+
+def test_a_small_slew_within_a_tenth_of_a_percent_of_the_eigenaxis_slew_is_accepted():
+    # 0.1° with J = I: the per-axis optimum and the eigenaxis slew agree to first order. The
+    # perturbed starts break the eigenaxis symmetry and agree, so this is no stuck saddle
+    # (independent audit: it used to come back as status 4, and solve() failed on it)
+    p = SlewProblem([1, 1, 1], qf=[0.9999996192282494, 0.0005267455202768193, -0.00019345580137766053,
+                                   0.000668324296978816])
+    sol = solve_collocation(p)
+    _assert_verified(sol)
+    assert sol.tf <= sol.baseline_tf * (1 + 1e-6) + sol.tf_tol
+    assert "Within 0.1 % of the eigenaxis slew" in sol.message
+
+
+def test_an_acceptable_level_ipopt_stop_is_verified_not_discarded():
+    # J = I, a 20° slew whose optimum has a singular arc on one axis: the NLP is degenerate and
+    # IPOPT stops at its acceptable level on the fine grid. The replay verifies the answer
+    # (independent audit: it used to be a failure, and solve() failed on it)
+    p = SlewProblem([1, 1, 1], q0=[-0.26680511196237977, -0.6465394802447856, -0.5234857191997838,
+                                   -0.4865844577351702],
+                    qf=[-0.2857276821670719, -0.6678057655422832, -0.37530706839762407, -0.575794890184603])
+    sol = solve_collocation(p)
+    _assert_verified(sol)
+    assert "IPOPT Solved_To_Acceptable_Level" in sol.message or "IPOPT Solve_Succeeded" in sol.message
+    assert sol.tf < sol.baseline_tf * (1 - 1e-3)
