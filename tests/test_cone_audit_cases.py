@@ -32,17 +32,39 @@ def test_collocation_clearance_is_certified_between_its_samples():
     assert margins(sol.problem, xs[:, 0:4]).min() >= -1e-6
 
 
+FAR_CONE = {"inertia": [1, 1, 1], "torque_max": 1,
+            "sensor_target": [-0.38054398367207576, 0.5740649984012693, -0.725007347619],
+            "cones": [{"axis": [-0.5565321268030824, -0.5157518953118683, 0.6513616309840898],
+                       "half_angle": 0.3490658503988659}]}
+
+
 def test_a_far_cone_that_upsets_collocation_does_not_fail_auto():
-    """Collocation with the cone stopped at IPOPT's 'acceptable level'; the problem without
-    the cone is solved and its path is certified 1.8 rad clear of it."""
-    p = {"inertia": [1, 1, 1], "torque_max": 1,
-         "sensor_target": [-0.38054398367207576, 0.5740649984012693, -0.725007347619],
-         "cones": [{"axis": [-0.5565321268030824, -0.5157518953118683, 0.6513616309840898],
-                    "half_angle": 0.3490658503988659}]}
-    sol = solve(p)
+    """Collocation with the cone stops at IPOPT's 'acceptable level' (a singular problem:
+    J = I); that answer is verified by its replay and returned, 1.8 rad clear of the cone."""
+    sol = solve(FAR_CONE)
+    assert sol.success, sol.message
+    assert sol.verification["cone_clearance"]["value"] > 1.0
+    assert len(sol.problem.cones) == 1        # reported against the problem as posed
+    xs = _fly(sol, 20000)
+    assert margins(sol.problem, xs[:, 0:4]).min() > 1.0
+
+
+def test_when_collocation_fails_with_a_far_cone_auto_answers_without_it(monkeypatch):
+    """If collocation with the cones fails, the problem without them is solved and its path
+    certified clear of them."""
+    from solvers import collocation
+    real = collocation.solve_collocation
+
+    def failing_with_cones(prob, **kw):
+        sol = real(prob, **kw)
+        if getattr(prob, "cones", None):
+            sol.success, sol.status, sol.message = False, 1, "forced failure (test)"
+        return sol
+    monkeypatch.setattr(collocation, "solve_collocation", failing_with_cones)
+    sol = solve(FAR_CONE)
     assert sol.success, sol.message
     assert "without cones" in sol.route
     assert sol.verification["cone_clearance"]["value"] > 1.0
-    assert len(sol.problem.cones) == 1        # reported against the problem as posed
+    assert len(sol.problem.cones) == 1
     xs = _fly(sol, 20000)
     assert margins(sol.problem, xs[:, 0:4]).min() > 1.0
