@@ -381,7 +381,7 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
             return ref
         why = ref.message if not ref.success else (
             f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
-        col.route = f"auto: collocation (exact refinement not certified: {why[:300]})"
+        col.route = f"auto: collocation ({col.route}; exact refinement not certified: {why[:300]})"
         col.message = (f"{col.message} Collocation answer (approximate, its own tolerances); the exact "
                        f"bang-bang refinement was not certified.")
         col.wall_time = spent()

@@ -362,3 +362,18 @@ def test_an_acceptable_level_ipopt_stop_is_verified_not_discarded():
     _assert_verified(sol)
     assert "IPOPT Solved_To_Acceptable_Level" in sol.message or "IPOPT Solve_Succeeded" in sol.message
     assert sol.tf < sol.baseline_tf * (1 - 1e-3)
+
+
+def test_the_default_mesh_is_refined_when_its_replay_misses():
+    # J = [1, 5, 10], 180° about y: on 60 intervals the replay of the control misses the
+    # target by 1.7e-4 rad (tolerance 1e-4): the fast x axis needs a finer mesh. The default
+    # mesh is refined (to 120 here) and held to the 60-interval tolerances (edge-case audit)
+    p = SlewProblem([1, 5, 10], qf=[0, 0, 1, 0])
+    coarse = solve_collocation(p, n_intervals=60)
+    assert not coarse.success and coarse.status == 2
+    assert not coarse.verification["boundary_attitude_error"]["passed"]
+    sol = solve_collocation(p)
+    _assert_verified(sol)
+    assert "mesh refined to N=120" in sol.route and "N=120" in sol.route
+    assert sol.verification["boundary_attitude_error"]["tol"] == pytest.approx(1e-4)
+    assert sol.tf < sol.baseline_tf * 0.95
