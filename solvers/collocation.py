@@ -126,7 +126,8 @@ Collocation is approximate, so the boundary tolerances are looser than the indir
 solver's 1e-8: ``1e-4`` rad and ``1e-4`` (nondimensional rate) at N = 60, scaled by
 ``(60 / N)²``, never below 1e-6 (measured: 3e-7 on R3, 2e-6 on R5, 5e-7 on R4 at N = 60).
 When the default mesh misses them (a very unequal inertia: J = [1, 5, 10] over 180° misses by
-1.7e-4 rad at N = 60), the mesh is refined to 2N and 4N with the N = 60 tolerances kept.
+1.7e-4 rad at N = 60), or the replay exceeds an active rate limit by more than 1e-4 relative,
+the mesh is refined to 2N and 4N with the N = 60 tolerances kept.
 
 Status: ``success`` only when IPOPT reports ``Solve_Succeeded`` (or
 ``Solved_To_Acceptable_Level``, constraints within 1e-6: degenerate NLPs with singular arcs
@@ -1260,7 +1261,7 @@ def _best_of_meshes(prob, meshes, t_start, **kw) -> SlewSolution:
 # checks that a finer mesh can repair: the replay's miss of the target, and what happens
 # between the collocation points
 _MESH_CHECKS = {"boundary_attitude_error", "boundary_rate_error", "roll_transversality", "quaternion_norm_drift",
-                "cone_clearance"}
+                "cone_clearance", "rate_limit"}
 MESH_REFINEMENTS = 2     # default mesh only: N → 2N → 4N while the replay misses
 
 

@@ -56,7 +56,12 @@ def failure_text(checks):
     if not failed:
         return ""
     c = checks[failed[0]]
-    text = f"verification failed: {failed[0]} = {c['value']:.3g} (tolerance {c['tol']:.3g})"
+    v, tol = float(c["value"]), float(c["tol"])
+    # enough digits to tell the value from its tolerance (a rate ratio of 1.0003 against 1.0001)
+    digits = 3
+    while digits < 12 and f"{v:.{digits}g}" == f"{tol:.{digits}g}":
+        digits += 1
+    text = f"verification failed: {failed[0]} = {v:.{digits}g} (tolerance {tol:.{digits}g})"
     if len(failed) > 1:
         text += f"; also failed: {', '.join(failed[1:])}"
     return text

@@ -377,3 +377,23 @@ def test_the_default_mesh_is_refined_when_its_replay_misses():
     assert "mesh refined to N=120" in sol.route and "N=120" in sol.route
     assert sol.verification["boundary_attitude_error"]["tol"] == pytest.approx(1e-4)
     assert sol.tf < sol.baseline_tf * 0.95
+
+
+def test_an_active_rate_limit_missed_by_the_replay_refines_the_mesh():
+    # rate limit 0.05 rad/s, J = [1, 2, 3], torque [1, 0.2, 0.5], a 60° slew: at N = 60 the
+    # replay exceeds the limit by 3e-4 relative (tolerance 1e-4) and misses the target; at
+    # N = 120 both pass (edge-case audit)
+    p = SlewProblem([1.0, 2.0, 3.0], torque_max=[1.0, 0.2, 0.5], rate_max=0.05,
+                    qf=[0.8660254037844387, -0.0060705293406842515, -0.48829281345632636, 0.10739309568323795])
+    sol = solve_collocation(p)
+    _assert_verified(sol)
+    assert "mesh refined to N=120" in sol.route
+    assert 1.0 < sol.verification["rate_limit"]["value"] <= 1.0001     # the limit is active
+
+
+def test_failure_text_shows_enough_digits_to_tell_value_from_tolerance():
+    from solvers.verify import failure_text
+    assert failure_text({"rate_limit": {"value": 1.00031, "tol": 1.0001, "passed": False}}) == \
+        "verification failed: rate_limit = 1.0003 (tolerance 1.0001)"
+    assert failure_text({"x": {"value": 2.5e-4, "tol": 1e-4, "passed": False}}) == \
+        "verification failed: x = 0.00025 (tolerance 0.0001)"
