@@ -165,8 +165,10 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
 
     ``warm_start``: where the first guess comes from when ``guess`` is not given
     (indirect routes and ``"auto"``): ``"default"`` (the shipped full-attitude model, for the
-    problems in its family), ``"pointing-cones"`` (the shipped model for pointing slews with
-    keep-out cones: opt-in, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
+    problems in its family; with keep-out cones and ``method="auto"``, the shipped
+    pointing-cones warm start challenges the default route's answer afterwards and replaces
+    it only with a faster verified extremal), ``"pointing-cones"`` (that warm start as the first
+    guess: opt-in, faster but often a slower local extremal, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
     ``NearestNeighbourModel`` or anything with ``covers(problem)`` and ``guess(problem)``),
     a model file path, or ``None``. The learned candidates are tried alone first (the first
     verified extremal that is not slower than the eigenaxis slew wins); if none is
@@ -179,7 +181,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
-    default 1; 0.1 with keep-out cones), ``tols`` (verification tolerances, see
+    default 1; 0.2 with keep-out cones), ``tols`` (verification tolerances, see
     ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400 steps), ``eps_min`` (end of the
     smoothing path, default 1e-3), ``rtol``/``atol`` (integrator). ``collocation``: a dict
     of options for ``solvers.collocation.solve_collocation`` (``method="collocation"`` and
@@ -211,7 +213,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     t0 = time.perf_counter()
     warm = None
     info = {}
-    if guess is None:
+    # auto with cones and the shipped models: the default route answers, and the shipped
+    # pointing-cones warm start challenges that answer afterwards (``_cone_challenger``)
+    challenge = (method == "auto" and bool(prob.cones) and guess is None and isinstance(warm_start, str)
+                 and warm_start == "default")
+    if guess is None and not challenge:
         warm, info = _warm_start(prob, method, warm_start, options)
         if warm is not None and warm.success:
             warm.wall_time = time.perf_counter() - t0
@@ -229,6 +235,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         sol = _solve_indirect_cones(prob, guess, col_opts, rest)
     else:
         sol = _solve_indirect(prob, method, guess, **rest)
+    if challenge:
+        sol = _cone_challenger(prob, sol, options, t0)
     if info:
         sol.warm_start = info
         if warm is not None:
@@ -284,6 +292,69 @@ def _warm_start(prob, method, warm_start, options):
     if sol.success:
         sol.route = f"learned guess ({name}) → {sol.route}"
     return sol, info
+
+
+def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
+    """``auto`` on a problem with cones: after the default route (collocation, then the exact
+    refinements) has answered, the shipped pointing-cones warm start (``warmstart.cone_ensemble``:
+    the solutions of the nearest tabled problems, then the network's guess) gets
+    ``CONE_WARM_BUDGET``. Its verified extremal replaces the answer only if it is faster (or
+    as fast within the answer's ``tf_tol`` and exact where the answer is not). Collocation
+    reaches local optima: on 1,000 held-out problems the warm start found a faster extremal
+    on 41 (28 by more than 1 %, up to 44 %); its other answers, often slower, are never used.
+    ``SlewSolution.warm_start`` records the challenge (``role: "challenger"``, ``won``)."""
+    from . import warmstart
+    model = warmstart.default_cone_model()
+    if model is None:
+        return sol
+    name = getattr(model, "name", type(model).__name__)
+    info = {"model": name, "role": "challenger", "covered": True, "succeeded": False, "won": False}
+    try:
+        g, why = model.guess_or_reason(prob)
+    except Exception as e:   # noqa: BLE001 - the answer stands; the model's failure is recorded
+        info["error"] = f"{type(e).__name__}: {e}"[:300]
+        sol.warm_start = info
+        return sol
+    if why:
+        sol.warm_start = {"model": name, "role": "challenger", "covered": False, "reason": why}
+        return sol
+    if hasattr(model, "warm_up"):
+        t_warm = model.warm_up()
+        if t_warm:
+            info["warm_up_s"] = t_warm
+    t1 = time.perf_counter()
+    left = float(options.get("time_budget", 20.0)) - (t1 - t0)
+    budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET)), max(0.0, left))
+    opts = {k: v for k, v in options.items() if k not in ("warm_budget", "time_budget")}
+    ch = _solve_learned_cones(prob, g, opts, budget) if budget > 0 else None
+    info["time_s"] = time.perf_counter() - t1
+    if ch is not None:
+        info.update(succeeded=bool(ch.success), candidates=ch.n_candidates)
+    if ch is None or not ch.success:
+        sol.warm_start = info
+        sol.wall_time = time.perf_counter() - t0
+        return sol
+    info["tf"] = float(ch.tf)
+    tol = sol.tf_tol if sol.success and math.isfinite(sol.tf_tol) else 0.0
+    faster = (not sol.success or ch.tf < sol.tf * (1.0 - 1e-9)
+              or (not sol.exact and ch.tf <= sol.tf + tol))
+    if not faster:
+        sol.warm_start = info
+        sol.wall_time = time.perf_counter() - t0
+        return sol
+    info["won"] = True
+    was = f"{sol.tf:.9g}" if sol.success else "no answer"
+    ch.route = (f"auto: the default route ({sol.route[:160]}) gave {was}; the pointing-cones warm start found a "
+                f"faster extremal → {ch.route}")
+    ch.message = f"{ch.message} Faster than the default route's answer ({was})."
+    ch.warm_start = info
+    ch.baseline_tf = sol.baseline_tf
+    ch.candidates_tf = sorted(set(list(getattr(sol, "candidates_tf", None) or [])
+                                  + ([round(sol.tf, 9)] if sol.success else []) + [round(ch.tf, 9)]))
+    ch.nit += sol.nit
+    ch.nfev += sol.nfev
+    ch.wall_time = time.perf_counter() - t0
+    return ch
 
 
 def _solve_learned_cones(prob, g, options, budget) -> SlewSolution:

@@ -256,9 +256,16 @@ def test_shipped_cone_model_is_opt_in():
     t = m.network.card["training"]
     assert t["family"] == "pointing-cones" and t["n_records"] >= 5000 and t["n_exact_solutions"] >= 5000
     assert m.covers(TOUCH) is None
-    # by default a cone problem gets no learned guess, and says why
+    # by default a cone problem gets no learned first guess: auto's answer is challenged by
+    # the warm start afterwards, and only replaced by a faster one
     plain = solve(TOUCH)
-    assert plain.success and plain.warm_start["covered"] is False and "opt-in" in plain.warm_start["reason"]
+    alone = solve(TOUCH, warm_start=None)
+    assert plain.success and plain.warm_start["role"] == "challenger" and "won" in plain.warm_start
+    assert plain.tf <= alone.tf * (1 + 1e-9)
+    assert "warm_start" not in alone.route and not alone.warm_start
+    # the indirect route with cones gets no guess by default, and says why
+    ind = solve(TOUCH, method="indirect")
+    assert ind.warm_start["covered"] is False and "opt-in" in ind.warm_start["reason"]
     # asked for, the shipped cone model is tried first; learned or not, the answer is verified
     sol = solve(TOUCH, warm_start="pointing-cones")
     assert sol.success and sol.exact
@@ -310,3 +317,28 @@ def test_canonical_problem_round_trip():
     assert back.tau == pytest.approx(1.0) and len(p.cones) == len(TOUCH.cones)
     with pytest.raises(ValueError, match="^x: expected 24 canonical features"):
         canonical_problem(cf.x[:10])
+
+
+# held-out problem 667 of the pointing-cones family (seed 20261122): collocation's local optimum
+# is 2.4026; the warm start's nearest neighbour leads to a touch-point extremal of 1.7608
+CHALLENGED = {"inertia": [0.8183035182128034, 0.48362743565964716, 0.6151937376746153],
+              "q0": [-0.19771432191697588, 0.6893286151014943, 0.040975195177070836, -0.6957414323521112],
+              "sensor_target": [-0.9558692722362203, -0.2937548452418787, 0.004693111070322955],
+              "cones": [{"axis": [-0.6499897904240365, 0.10940321428617852, -0.7520267342643943],
+                         "half_angle": 0.3433351904139111}]}
+
+
+def test_auto_takes_the_warm_starts_faster_extremal(monkeypatch):
+    import solvers.api as api
+    monkeypatch.setattr(api, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
+    monkeypatch.setattr(api, "CONE_WARM_BUDGET", 5.0)
+    alone = solve(CHALLENGED, warm_start=None)
+    assert alone.success
+    sol = solve(CHALLENGED)
+    assert sol.success and sol.exact and sol.warm_start["role"] == "challenger"
+    assert sol.tf == pytest.approx(1.7608, abs=1e-3)
+    assert sol.verification["cone_clearance"]["value"] >= -1e-6
+    # measured: the default route alone stops at 2.4026 (a local optimum)
+    if alone.tf > sol.tf * (1 + 1e-6):
+        assert sol.warm_start["won"] is True and "faster extremal" in sol.route
+        assert sol.guess.startswith("nearest-neighbour") and round(alone.tf, 9) in sol.candidates_tf

@@ -69,12 +69,15 @@ def _cone_ensemble(network, table):
 
 
 class _ConeModelOptIn:
-    """What ``warm_start="default"`` gives a pointing problem with cones: no guess, and the
-    reason recorded in ``SlewSolution.warm_start`` (the shipped cone model is opt-in)."""
+    """What ``warm_start="default"`` gives a pointing problem with cones as a first guess: none,
+    and the reason recorded in ``SlewSolution.warm_start`` (the shipped cone model is opt-in as
+    a first guess; ``method="auto"`` uses it as a challenger after the default route instead,
+    ``solvers.api._cone_challenger``)."""
     name = "shipped models"
-    REASON = ("cones: the shipped pointing-cones warm start is opt-in, warm_start='pointing-cones' (on held-out "
-              "problems it converges on 58 %, and 42 % of those answers are slower local extremals than the "
-              "collocation route's; docs/WARMSTART.md)")
+    REASON = ("cones: the shipped pointing-cones warm start is opt-in as a first guess, warm_start='pointing-cones' "
+              "(on held-out problems it converges on 58 %, and 42 % of those answers are slower local extremals "
+              "than the collocation route's; docs/WARMSTART.md); method='auto' tries it after the default route "
+              "and keeps its answer only if faster")
 
     def covers(self, problem):
         return self.REASON
