@@ -67,8 +67,9 @@ def add_arguments(p):
                    help="batch: worker processes (default 1)")
     p.add_argument("--no-progress", action="store_true", help="batch: no progress bar")
     p.add_argument("--warm-start", default="default", metavar="MODEL",
-                   help="learned warm start: 'default' (the shipped full-attitude model), 'pointing-cones' "
-                        "(the shipped model for pointing slews with cones, opt-in), 'none', or a model file "
+                   help="learned warm start: 'default' (the shipped full-attitude model; with cones, auto tries "
+                        "the pointing-cones warm start after its route and keeps a faster answer), 'pointing-cones' "
+                        "(that warm start as the first guess, opt-in), 'none', or a model file "
                         "(.npz from 'slew train', .nn.npz nearest-neighbour table)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
