@@ -318,6 +318,7 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
     if why:
         sol.warm_start = {"model": name, "role": "challenger", "covered": False, "reason": why}
         return sol
+    info["inference_s"] = getattr(model, "last_inference_s", math.nan)
     if hasattr(model, "warm_up"):
         t_warm = model.warm_up()
         if t_warm:

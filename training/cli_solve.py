@@ -205,7 +205,13 @@ def summary_lines(sol, prob, warm=None):
     L.append(f"wall time     {sol.wall_time:.3f} s")
     ws = warm or getattr(sol, "warm_start", None) or {}
     if ws:
-        if ws.get("covered"):
+        if ws.get("covered") and ws.get("role") == "challenger":
+            res = ("found a faster extremal, which is the answer" if ws.get("won") else
+                   f"converged to {ws['tf']:.9g}, not faster: the route's answer stands" if ws.get("succeeded") else
+                   "did not converge: the route's answer stands")
+            L.append(f"warm start    {ws.get('model')}, as a challenger after the route "
+                     f"(inference {1e6 * ws.get('inference_s', 0):.0f} µs): {res}")
+        elif ws.get("covered"):
             res = "its guess won" if ws.get("succeeded") else "its guess failed, classical route used"
             L.append(f"warm start    {ws.get('model')}: inference {1e6 * ws.get('inference_s', 0):.0f} µs, {res}")
         else:
