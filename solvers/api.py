@@ -58,7 +58,7 @@ from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONV
 from .switch_time import Structure
 from .verify import make_check, verify
 
-METHODS = ("auto", "indirect", "multiple-shooting", "collocation")
+METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget"}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
@@ -210,6 +210,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     if method == "collocation":
         from .collocation import solve_collocation
         return solve_collocation(prob, guess=guess, **col_opts)
+    if method == "eigenaxis":
+        from .eigenaxis_answer import eigenaxis_answer
+        return eigenaxis_answer(prob)
     t0 = time.perf_counter()
     warm = None
     info = {}
@@ -237,6 +240,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         sol = _solve_indirect(prob, method, guess, **rest)
     if challenge:
         sol = _cone_challenger(prob, sol, options, t0)
+    if method == "auto":
+        sol = _no_slower_than_eigenaxis(prob, sol, t0)
     if info:
         sol.warm_start = info
         if warm is not None:
@@ -292,6 +297,29 @@ def _warm_start(prob, method, warm_start, options):
     if sol.success:
         sol.route = f"learned guess ({name}) → {sol.route}"
     return sol, info
+
+
+def _no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
+    """``auto``'s answer to a rest-to-rest full-attitude problem is never slower than the
+    eigenaxis slew: an approximate (collocation) answer that is not faster — small slews,
+    where the two agree to first order and collocation cannot resolve the difference — is
+    replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
+    if (not sol.success or sol.exact or prob.cones or prob.qf is None or not prob.is_rest_to_rest
+            or not math.isfinite(sol.baseline_tf) or sol.tf < sol.baseline_tf * (1.0 - 1e-6)):
+        return sol
+    from .eigenaxis_answer import eigenaxis_answer
+    eig = eigenaxis_answer(prob)
+    if not eig.success or not eig.tf < sol.tf:
+        return sol
+    eig.route = (f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "
+                 f"({eig.tf:.9g}): the eigenaxis slew is the answer")
+    eig.message = (f"{eig.message} The time-optimal routes found nothing faster (best {sol.tf:.9g}, approximate, "
+                   f"tf_tol {sol.tf_tol:.2g}): for a slew this small the two agree to first order.")
+    eig.nit, eig.nfev = sol.nit, sol.nfev
+    eig.candidates_tf = sorted(set(list(sol.candidates_tf or []) + [round(eig.tf, 9)]))
+    eig.warm_start = sol.warm_start
+    eig.wall_time = time.perf_counter() - t0
+    return eig
 
 
 def _cone_challenger(prob, sol, options, t0) -> SlewSolution:

@@ -85,3 +85,41 @@ def replay_quadratic_control(x0, tk, U, Um, Ulim, p, J, samples, substeps):
                 row += 1
         t[row - 1] = b
     return t, X, n
+
+
+@njit(cache=True)
+def _eigen_torque(k, tau, rate, acc, a, c):
+    r = rate[k] + acc[k] * tau
+    return (acc[k] * a[0] + r * r * c[0], acc[k] * a[1] + r * r * c[1], acc[k] * a[2] + r * r * c[2])
+
+
+@njit(cache=True)
+def replay_eigenaxis_profile(x0, t, rate, acc, a, c, J, substeps):
+    """Final state under the eigenaxis profile's torque: on ``[t_k, t_k+1)`` the rotation rate is
+    ``θ̇(t) = rate_k + acc_k (t - t_k)`` and the torque ``u = acc_k a + θ̇² c`` (``a = J n``,
+    ``c = n × J n``); RK4, ``substeps`` steps an interval (the torque is smooth inside)."""
+    x = x0.copy()
+    y = np.empty(7)
+    for k in range(t.shape[0] - 1):
+        L = t[k + 1] - t[k]
+        if not L > 0.0:
+            continue
+        h = L / substeps
+        for j in range(substeps):
+            s = j * h
+            u0, u1, u2 = _eigen_torque(k, s, rate, acc, a, c)
+            k1 = state_rhs_scalar(x[0], x[1], x[2], x[3], x[4], x[5], x[6], u0, u1, u2, J[0], J[1], J[2])
+            u0, u1, u2 = _eigen_torque(k, s + 0.5 * h, rate, acc, a, c)
+            for i in range(7):
+                y[i] = x[i] + 0.5 * h * k1[i]
+            k2 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
+            for i in range(7):
+                y[i] = x[i] + 0.5 * h * k2[i]
+            k3 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
+            u0, u1, u2 = _eigen_torque(k, s + h, rate, acc, a, c)
+            for i in range(7):
+                y[i] = x[i] + h * k3[i]
+            k4 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
+            for i in range(7):
+                x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    return x

@@ -1,0 +1,110 @@
+"""The eigenaxis slew as a ``SlewSolution``: the baseline planner in the solvers' result format.
+
+``solve(problem, method="eigenaxis")`` returns it; ``method="auto"`` returns it when the best
+answer it found is an approximate one slower than the eigenaxis slew (small slews, where the
+time-optimal slew and the eigenaxis slew agree to first order and collocation cannot tell them
+apart within its accuracy).
+
+The answer is the phase-plane profile of ``eigenaxis.eigenaxis_slew``: on each of its
+``n_grid`` angle steps the acceleration ``θ̈_k`` is constant, so the rate is linear in time,
+``θ̇(t) = θ̇_k + θ̈_k (t - t_k)``, and the torque is ``u = θ̈_k J n + θ̇² (n × J n)`` — affine in
+``θ̇²`` between the step's ends, where the sweep keeps it within the bound, so within the bound
+throughout. ``control(t)`` is that torque, and ``tf`` the profile's exact duration. The
+verification replays the control (RK4, ``core.control_replay``) and checks the boundary
+(1e-8, as for exact answers), the torque bound at every step's ends and the rate limit.
+It is not an extremal of the time-optimal problem: ``exact`` is ``False``, ``costate0`` is NaN
+and ``switch_times`` are empty (the torque is not bang-bang per axis).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from slew_env import SlewProblem
+from slew_env.core.quaternion import qerror_angle, qmul
+from .eigenaxis import _checked, _phase_plane, eigenaxis_slew
+from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
+from .verify import failure_text, make_check
+
+BOUNDARY_TOL = 1e-8
+N_GRID = 4000
+N_DENSE = 400
+
+
+def eigenaxis_answer(problem, n_grid: int = N_GRID) -> SlewSolution:
+    """The fastest eigenaxis slew of a rest-to-rest full-attitude ``problem`` without cones
+    (module docstring); ``ValueError`` for other problems."""
+    t_start = time.perf_counter()
+    prob = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
+    if prob.cones:
+        raise ValueError("cones: the eigenaxis planner ignores keep-out cones; use method='auto' or 'collocation'")
+    prob = _checked(prob)       # full-attitude target, rest to rest
+    n, th, a, c, _ = _phase_plane(prob)
+    if th == 0.0:
+        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
+    es = eigenaxis_slew(prob, n_grid)
+    t, rate = es.t, es.rate
+    s = rate ** 2
+    acc = (s[1:] - s[:-1]) / (2.0 * (th / n_grid))
+    q0 = np.asarray(prob.q0, float)
+    J = np.asarray(prob.inertia, float)
+    U = np.asarray(prob.torque_max, float)
+    p = float(prob.torque_norm)
+    theta_k = es.theta
+
+    def locate(tq):
+        tq = np.clip(np.asarray(tq, dtype=float), 0.0, t[-1])
+        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n_grid - 1)
+        return k, tq - t[k]
+
+    def control(tq):
+        tq = np.asarray(tq, dtype=float)
+        k, tau = locate(tq)
+        r = rate[k] + acc[k] * tau
+        return acc[k][..., None] * a + (r * r)[..., None] * c
+
+    # dense samples: the exact profile
+    td = np.linspace(0.0, float(t[-1]), N_DENSE + 1)
+    k, tau = locate(td)
+    thd = theta_k[k] + rate[k] * tau + 0.5 * acc[k] * tau ** 2
+    rd = rate[k] + acc[k] * tau
+    qd = np.array([qmul(q0, np.concatenate([[math.cos(0.5 * v)], math.sin(0.5 * v) * n])) for v in thd])
+    ud = control(td)
+    # verification: replay, torque at both ends of every step, rate limit
+    from .core.control_replay import replay_eigenaxis_profile
+    x0 = np.concatenate([q0, np.zeros(3)])
+    xf = replay_eigenaxis_profile(x0, np.ascontiguousarray(t, float), np.ascontiguousarray(rate, float),
+                                  np.ascontiguousarray(acc, float), np.ascontiguousarray(a, float),
+                                  np.ascontiguousarray(c, float), J, 4)
+    att = float(qerror_angle(xf[0:4] / np.linalg.norm(xf[0:4]), prob.qf))
+    rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
+    w_scale = max(1.0, float(np.max(np.abs(rate))))
+    ends = np.vstack([acc[:, None] * a + s[:-1, None] * c, acc[:, None] * a + s[1:, None] * c])
+    ratio = np.abs(ends) / U
+    bound = float(np.max(ratio)) if math.isinf(p) else float(np.max(np.sum(ratio ** p, axis=1) ** (1.0 / p)))
+    checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
+              "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
+              "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
+    if prob.rate_max is not None:
+        rl = float(np.max(np.max(rate) * np.abs(n) / np.asarray(prob.rate_max, float)))
+        checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
+    text = failure_text(checks)
+    # tf is the duration of this profile exactly; tf_tol: its distance to the continuous
+    # eigenaxis optimum, from a grid half as fine
+    tf = float(t[-1])
+    tf_tol = abs(tf - eigenaxis_slew(prob, max(2, n_grid // 2)).tf)
+    msg = (f"The eigenaxis slew: about the body axis n = [{n[0]:.6g}, {n[1]:.6g}, {n[2]:.6g}] by "
+           f"{math.degrees(th):.6g}°, the fastest within the bounds (phase-plane profile, {n_grid} steps), "
+           "replayed from its control. Not a time-optimal extremal.")
+    if text:
+        msg = f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}. {msg}"
+    first = ud[0]
+    return SlewSolution(not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0,
+                        time.perf_counter() - t_start, tf=tf, tf_tol=tf_tol,
+                        u_first=np.where(first > 0, 1.0, np.where(first < 0, -1.0, 0.0)),
+                        t=td, q=qd, omega=rd[:, None] * n[None, :], u=ud, costate=np.full((td.size, 7), np.nan),
+                        method="eigenaxis", route=f"eigenaxis slew (phase-plane profile, {n_grid} steps)",
+                        guess="eigenaxis", n_candidates=1, candidates_tf=[round(tf, 9)], baseline_tf=tf,
+                        verification=checks, problem=prob, _control=control)
