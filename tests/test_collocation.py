@@ -381,14 +381,26 @@ def test_the_default_mesh_is_refined_when_its_replay_misses():
 
 def test_an_active_rate_limit_missed_by_the_replay_refines_the_mesh():
     # rate limit 0.05 rad/s, J = [1, 2, 3], torque [1, 0.2, 0.5], a 60° slew: at N = 60 the
-    # replay exceeds the limit by 3e-4 relative (tolerance 1e-4) and misses the target; at
-    # N = 120 both pass (edge-case audit)
+    # replay misses the target by 1.25e-4 rad (and, before the rate back-off, exceeded the
+    # limit by 3e-4 relative); at N = 120 it passes (edge-case audit)
     p = SlewProblem([1.0, 2.0, 3.0], torque_max=[1.0, 0.2, 0.5], rate_max=0.05,
                     qf=[0.8660254037844387, -0.0060705293406842515, -0.48829281345632636, 0.10739309568323795])
     sol = solve_collocation(p)
     _assert_verified(sol)
     assert "mesh refined to N=120" in sol.route
-    assert 1.0 < sol.verification["rate_limit"]["value"] <= 1.0001     # the limit is active
+    assert 0.999 < sol.verification["rate_limit"]["value"] <= 1.0     # the limit is active, and kept
+
+
+def test_the_replayed_path_keeps_an_active_rate_limit():
+    # J = [1, 2, 3], rate limit 0.2 rad/s, 120°: the NLP keeps the limit at its points, the
+    # replayed path exceeded it by 4.9e-5 relative between them (edge-case audit); the
+    # rate back-off scales the NLP's limit down until the replay keeps it
+    p = SlewProblem([1.0, 2.0, 3.0], rate_max=0.2,
+                    qf=[0.5000000000000001, -0.5781898196643239, -0.6091040562397556, 0.21139721168646788])
+    sol = solve_collocation(p)
+    _assert_verified(sol)
+    assert 0.999 < sol.verification["rate_limit"]["value"] <= 1.0
+    assert sol.verification["rate_limit"]["tol"] == pytest.approx(1.0 + 1e-9)
 
 
 def test_failure_text_shows_enough_digits_to_tell_value_from_tolerance():
