@@ -38,7 +38,7 @@ import sys
 import tempfile
 import time
 
-METHOD_CHOICES = ("auto", "indirect", "multiple-shooting", "collocation")  # == solvers.METHODS (tested; not imported: fast --help)
+METHOD_CHOICES = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")  # == solvers.METHODS (tested; not imported: fast --help)
 BAD_LINE_STATUS = -1        # batch record of a line that does not validate (ValueError)
 INTERNAL_ERROR_STATUS = -2  # batch record of a line on which the solver raised anything else
 
