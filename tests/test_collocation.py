@@ -409,3 +409,22 @@ def test_failure_text_shows_enough_digits_to_tell_value_from_tolerance():
         "verification failed: rate_limit = 1.0003 (tolerance 1.0001)"
     assert failure_text({"x": {"value": 2.5e-4, "tol": 1e-4, "passed": False}}) == \
         "verification failed: x = 0.00025 (tolerance 0.0001)"
+
+
+def test_a_back_off_round_that_jumps_to_another_basin_is_not_taken():
+    # pointing slew with one cone (held-out problem 667): the 80-interval answer 1.76085 dips
+    # into the cone by 2.3e-5 rad between points; its cone back-off re-solve came back at
+    # 2.40264, 36 % slower, and was returned as the verified answer (review). A round that moves
+    # T by more than its own size is now refused; the finer mesh decides instead
+    from solvers.collocation import _back_off
+
+    class Run:
+        def __init__(self, T):
+            self.T, self.success, self.nit, self.nfev, self.source = T, True, 1, 1, "start"
+    failures = []
+    rep = type("Rep", (), {"x": np.zeros((2, 7))})()
+    best, rep2, nit, nfev = _back_off(None, Run(1.76085), rep, math.inf, failures,
+                                      lambda run, e: (Run(2.40264), "cone back-off 3.4e-05 rad"),
+                                      lambda run, r: 2.29e-5)
+    assert best.T == 1.76085 and rep2 is rep and nit == 1
+    assert "left the answer's basin" in failures[0]

@@ -293,7 +293,10 @@ def test_shipped_cone_warm_start_tries_the_table_then_the_network():
 
 
 @pytest.mark.parametrize("j", [1, 2])
-def test_a_tabled_problem_converges_from_its_own_solution(j):
+def test_a_tabled_problem_converges_from_its_own_solution(j, monkeypatch):
+    import solvers.api as api
+    monkeypatch.setattr(api, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
+    monkeypatch.setattr(api, "CONE_WARM_BUDGET", 5.0)
     # the table's problem j, rebuilt from its canonical features (τ = 1): its own stored
     # solution is the first candidate and converges to it (record 1 touches a cone, 2 does not)
     from solvers.warmstart import default_cone_model
@@ -342,3 +345,14 @@ def test_auto_takes_the_warm_starts_faster_extremal(monkeypatch):
     if alone.tf > sol.tf * (1 + 1e-6):
         assert sol.warm_start["won"] is True and "faster extremal" in sol.route
         assert sol.guess.startswith("nearest-neighbour") and round(alone.tf, 9) in sol.candidates_tf
+
+
+def test_a_failing_challenger_leaves_the_verified_answer(monkeypatch):
+    import solvers.api as api
+
+    def broken(*a, **k):
+        raise RuntimeError("model bug (test)")
+    monkeypatch.setattr(api, "_solve_learned_cones", broken)
+    sol = solve(TOUCH)
+    assert sol.success and sol.warm_start["role"] == "challenger"
+    assert sol.warm_start["won"] is False and "model bug (test)" in sol.warm_start["error"]

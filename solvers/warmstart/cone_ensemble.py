@@ -46,26 +46,26 @@ class ConeEnsembleWarmStart:
         self.last_inference_s = float("nan")
         self._warm = False
 
-    def warm_up(self):
-        """Load the solver's compiled kernels once per process, by solving a tabled problem from
-        its own solution (about 0.5 s the first time, nothing after). Without it the first
-        candidates of a process's first solve spend their time caps loading compiled code."""
+    def warm_up(self, solve):
+        """Load the solver's compiled kernels once per process: ``solve(problem, guess)`` (the
+        candidates' own route, without time caps) on two tabled problems from their own
+        solutions, one that touches a cone and one that does not (about 0.3–0.5 s the first
+        time, nothing after). Without it the first candidates of a process's first solve spend
+        their time caps loading compiled code."""
         if self._warm:
             return 0.0
-        from ..cone_touch import solve_touch_guess
-        from .cone_features import canonical_problem, solution_from_canonical, cone_canonical_form
+        from .cone_features import canonical_problem
         t0 = time.perf_counter()
         self._warm = True
         a = self.table.a
-        rows = np.flatnonzero(a["touch"].sum(axis=1) > 0)
-        if rows.size:
-            j = int(rows[0])
-            try:
-                p = canonical_problem(a["X"][j])
-                g = self.table.guess(p, k=1)
-                solve_touch_guess(p, g, time_budget=5.0, smoothing=False)
-            except ValueError:
-                pass        # a warm-up only: any answer (or none) loads the kernels
+        touched = a["touch"].sum(axis=1) > 0
+        for rows in (np.flatnonzero(touched), np.flatnonzero(~touched)):
+            if rows.size:
+                try:
+                    p = canonical_problem(a["X"][int(rows[0])])
+                    solve(p, self.table.guess(p, k=1))
+                except ValueError:
+                    pass        # a warm-up only: any answer (or none) loads the kernels
         return time.perf_counter() - t0
 
     def covers(self, problem):
