@@ -339,7 +339,7 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
     ``CONE_WARM_BUDGET``. Its verified extremal replaces the answer only if it is faster (or
     as fast within the answer's ``tf_tol`` and exact where the answer is not). Collocation
     reaches local optima: on 1,000 held-out problems the warm start found a faster extremal
-    on 41 (28 by more than 1 %, up to 44 %); its other answers, often slower, are never used.
+    on 36 (23 by more than 1 %, up to 44 %); its other answers, often slower, are never used.
     ``SlewSolution.warm_start`` records the challenge (``role: "challenger"``, ``won``)."""
     from . import warmstart
     left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
