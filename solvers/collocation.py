@@ -1379,8 +1379,9 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
     t_start = time.perf_counter()
     kw = dict(transcription=transcription, tol=tol, max_iter=max_iter, verbose=verbose, seed=seed, coarse=coarse,
               tols=tols)
+    evidence = {}
     sol = _solve_collocation_mesh(problem, n_intervals=n_intervals, guess=guess, time_budget=time_budget,
-                                  n_starts=n_starts, mesh=mesh, **kw)
+                                  n_starts=n_starts, mesh=mesh, evidence=evidence, **kw)
     if n_intervals is not None or mesh is not None or not _mesh_limited(sol):
         return sol
     # the default mesh is too coarse for this problem (fast axes of a very unequal inertia,
@@ -1397,7 +1398,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         base = dict(DEFAULT_TOLS, **(tols or {}))
         fine_tols = dict(base, **{c: base[c] * 4 ** k for c in ("boundary_attitude_error", "boundary_rate_error")})
         finer = _solve_collocation_mesh(prob, n_intervals=N * 2 ** k, guess=sol, time_budget=left, n_starts=1,
-                                        mesh=None, **dict(kw, tols=fine_tols))
+                                        mesh=None, evidence=evidence, **dict(kw, tols=fine_tols))
         note = (f"mesh refined to N={N * 2 ** k}, with the boundary tolerances of N={N} (at N={N} the replay "
                 f"failed: {failure_text(first.verification)[:160]})")
         finer.route = f"{finer.route}; {note}"
@@ -1418,9 +1419,11 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
 
 
 def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, max_iter, time_budget, verbose,
-                            n_starts, seed, coarse, mesh, tols) -> SlewSolution:
-    """``solve_collocation`` on one mesh (or each mesh of a list)."""
+                            n_starts, seed, coarse, mesh, tols, evidence=None) -> SlewSolution:
+    """``solve_collocation`` on one mesh (or each mesh of a list). ``evidence``: a dict that
+    carries the saddle rule's count of agreeing symmetry-breaking starts between meshes."""
     t_start = time.perf_counter()
+    evidence = {} if evidence is None else evidence
     prob = SlewProblem.from_dict(problem)
     if n_intervals is None:
         n_intervals = DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
@@ -1489,6 +1492,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                 budget_hit = True
                 break
     conv1 = sorted([r for r in stage1 if r.success], key=lambda r: r.T)
+    agreeing = sum(1 for r in conv1 if r.source.endswith("perturbed") and abs(r.T - conv1[0].T) <= 1e-3 * conv1[0].T)
+    evidence["escaped"] = max(int(evidence.get("escaped", 0)), agreeing)
     coarse_tf = sorted({round(r.T * sc.tau, 6) for r in conv1})
     # ---- stage 2: refine on N
     finals = []      # (run, coarse T)
@@ -1555,11 +1560,12 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     # the limit scaled down by the excess until the replay keeps it.
     if sc.rate is not None:
         def rate_round(run, excess):
-            scale = run.nlp.rate_scale * (1.0 - 1.5 * excess) - 1e-9
+            scale = max(0.5, run.nlp.rate_scale * (1.0 - 1.5 * excess) - 1e-9)
             return (run.nlp.with_rate_scale(scale).solve(run.w, deadline, run.source, delta=run.delta),
                     f"rate back-off {1.0 - scale:.2g}")
+        # (rounds stop within 1e-10 of the limit: the check allows 1e-9)
         best, rep, n1, n2 = _back_off(sc, best, rep, deadline, failures, rate_round,
-                                      lambda run, r: float(np.max(np.abs(r.x[:, 4:7]) / sc.rate)) - 1.0)
+                                      lambda run, r: float(np.max(np.abs(r.x[:, 4:7]) / sc.rate)) - 1.0 - 1e-10)
         nit, nfev = nit + n1, nfev + n2
     if (math.isfinite(Tc) and best.success and abs(best.T - Tc) > 1e-2 * best.T
             and time.perf_counter() < deadline):
@@ -1575,6 +1581,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         route += f", warm start from N={Nc} (best of {len(conv1)} converged start(s))"
     if best.delta > 0:
         route += f", cone back-off {best.delta:.3g} rad"
+    if best.nlp.rate_scale < 1.0:
+        route += f", rate limit backed off by {1.0 - best.nlp.rate_scale:.2g}"
     fields["route"] = route
     cands = sorted({round(f[0].T * sc.tau, 9) for f in conv if f[0] is not best0}
                    | ({round(best.T * sc.tau, 9)} if conv else set()))
@@ -1607,7 +1615,9 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         # guess); precession makes per-axis optima 5-20 % faster. Perturbed starts break that
         # symmetry: when at least two of them converge and none beats it by 0.1 %, the optimum
         # is that close to the eigenaxis slew (small slews, where the two agree to first order)
-        escaped = sum(1 for r in conv1 if r.source.endswith("perturbed"))
+        # (the perturbed starts that reached the best coarse answer; a refinement of this
+        # answer on a finer mesh carries the count over in ``evidence``)
+        escaped = max(int(evidence.get("escaped", 0)), agreeing)
         near = fields["tf"] >= baseline * (1 - 1e-3)
         saddle = math.isinf(sc.p) and near and escaped < 2
         if slower or saddle:
@@ -1620,7 +1630,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     msg = f"Collocation NLP solved (IPOPT {best.status}) and verified by re-propagation."
     if not prob.cones and math.isfinite(baseline) and math.isinf(sc.p) and near:
         msg += (f" Within 0.1 % of the eigenaxis slew ({baseline:.9g}), as {escaped} symmetry-breaking starts "
-                "agree: the slew is small enough for the two to agree to first order.")
+                "agree" + (": the slew is small enough for the two to agree to first order." if prob.rate_max is None
+                           else " (with an active rate limit the two can agree this closely)."))
     if len(cands) > 1:
         msg += f" Best of {len(cands)} refined local optima (final times {cands})."
     msg += local

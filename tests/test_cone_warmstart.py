@@ -260,7 +260,8 @@ def test_shipped_cone_model_is_opt_in():
     # the warm start afterwards, and only replaced by a faster one
     plain = solve(TOUCH)
     alone = solve(TOUCH, warm_start=None)
-    assert plain.success and plain.warm_start["role"] == "challenger" and "won" in plain.warm_start
+    assert plain.success and plain.warm_start["role"] == "challenger" and plain.warm_start["covered"]
+    assert plain.warm_start["won"] == (plain.tf < alone.tf * (1 - 1e-9))
     assert plain.tf <= alone.tf * (1 + 1e-9)
     assert "warm_start" not in alone.route and not alone.warm_start
     # the indirect route with cones gets no guess by default, and says why
