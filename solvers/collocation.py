@@ -1526,9 +1526,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     baseline = math.nan
     if prob.is_rest_to_rest and prob.qf is not None:
         from .eigenaxis import eigenaxis_slew
-        # (a p-norm eigenaxis slew costs a scalar minimisation per grid point: a coarser
-        # grid, whose answer is slower by ~1e-5 relative, i.e. a more lenient baseline)
-        baseline = eigenaxis_slew(prob, n_grid=1000 if math.isinf(sc.p) else 100).tf
+        baseline = eigenaxis_slew(prob, n_grid=1000).tf
     common["baseline_tf"] = baseline
     coarse_only = False
     if not finals:

@@ -74,15 +74,19 @@ def _phase_plane(problem: SlewProblem):
     if math.isinf(p):
         s_mvc = topp.max_speed(a, c, np.ascontiguousarray(U, float))
     else:   # largest s with a non-empty acceleration interval, by bisection
+        Uc = np.ascontiguousarray(U, float)
+
+        def feasible(sv):   # the compiled interval (``_accel_interval`` is its reference)
+            return topp.accel_interval_pnorm(a, c, Uc, float(p), float(sv))[2]
         hi = 1.0
-        while _accel_interval(a, c, U, p, hi) is not None and hi < 1e12:
+        while feasible(hi) and hi < 1e12:
             hi *= 2.0
         s_mvc = math.inf
         if hi < 1e12:
             lo = 0.0
             for _ in range(100):
                 mid = 0.5 * (lo + hi)
-                if _accel_interval(a, c, U, p, mid) is not None:
+                if feasible(mid):
                     lo = mid
                 else:
                     hi = mid
@@ -135,10 +139,13 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
         # without a gyroscopic term the feasible accelerations do not depend on the rate
         return fixed if fixed is not None else _accel_interval(a, c, U, p, min(s, s_max))
 
+    Uc = np.ascontiguousarray(U, float)
     if math.isinf(p):   # the compiled sweeps (this baseline runs on every indirect solve)
-        fwd, bwd = topp.sweep_per_axis(a, c, np.ascontiguousarray(U, float), float(s_max), float(th), int(n_grid))
-    else:
+        fwd, bwd = topp.sweep_per_axis(a, c, Uc, float(s_max), float(th), int(n_grid))
+    elif fixed is not None:   # no gyroscopic term: one interval for every speed
         fwd, bwd = _sweep_python(interval, s_max, dth, n_grid)
+    else:
+        fwd, bwd = topp.sweep_pnorm(a, c, Uc, float(p), float(s_max), float(th), int(n_grid))
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
     rate = np.sqrt(s_prof)
     # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)

@@ -57,8 +57,8 @@ def test_auto_never_returns_a_small_slew_slower_than_the_eigenaxis_slew():
 
 
 def test_a_pnorm_eigenaxis_answer_of_an_asymmetric_body_is_quick_and_verified():
-    # a p-norm bound with a gyroscopic term has no compiled sweep: a coarser profile (review:
-    # 4000 steps took 12-25 s)
+    # a p-norm bound with a gyroscopic term: the compiled golden-section sweep (review: the
+    # Python one took 12-25 s for 4000 steps)
     p = SlewProblem([1.0, 5.0, 10.0], torque_norm=2.0, qf=[0.99984770, 0.00082948, -0.00610713, -0.01632793])
     sol = solvers.solve(p, method="eigenaxis")
     assert sol.success and sol.wall_time < 5.0
@@ -73,3 +73,21 @@ def test_eigenaxis_method_rejects_what_it_does_not_plan():
                       method="eigenaxis")
     with pytest.raises(ValueError, match="^sensor_target: the eigenaxis slew needs a full attitude target"):
         solvers.solve({"inertia": [1, 1, 1], "sensor_target": [0, 1, 0]}, method="eigenaxis")
+
+
+def test_compiled_pnorm_sweep_matches_the_reference_interval():
+    # the compiled feasible-acceleration interval against the scipy reference (minimize_scalar
+    # and brentq), away from the maximum-velocity curve where both are one point
+    from solvers import eigenaxis as E
+    from solvers.core import eigenaxis_topp as topp
+    rng = np.random.default_rng(5)
+    for _ in range(12):
+        q = rng.normal(size=4)
+        prob = SlewProblem(rng.uniform(0.5, 5, 3), torque_max=rng.uniform(0.3, 1, 3),
+                           torque_norm=float(rng.choice([1.2, 2.0, 3.0, 7.0])), qf=q / np.linalg.norm(q))
+        n, th, a, c, s_max = E._phase_plane(prob)
+        U = np.asarray(prob.torque_max, float)
+        for s in (0.0, 0.5 * min(s_max, 1.0)):
+            lo, hi = E._accel_interval(a, c, U, prob.torque_norm, s)
+            lo2, hi2, ok = topp.accel_interval_pnorm(a, c, U, prob.torque_norm, s)
+            assert ok and abs(lo2 - lo) < 1e-9 * max(1.0, abs(lo)) and abs(hi2 - hi) < 1e-9 * max(1.0, abs(hi))

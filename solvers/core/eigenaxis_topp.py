@@ -1,10 +1,10 @@
-"""Phase-plane sweeps of the eigenaxis baseline for the per-axis bound (compiled).
+"""Phase-plane sweeps of the eigenaxis slew (compiled), for the per-axis and the p-norm bound.
 
 The eigenaxis slew is computed on every indirect solve (it gates local optima), so its
-forward/backward integration of ``s = θ̇²`` runs here, on plain arrays. Same algorithm as
-the Python fallback in ``solvers.eigenaxis`` (used for p-norm bounds): on each grid
+forward/backward integration of ``s = θ̇²`` runs here, on plain arrays: on each grid
 interval the acceleration is constant and feasible at both ends, so the sampled torques
-never exceed the bound.
+never exceed the bound. For a p-norm bound the feasible accelerations at a speed are the
+sublevel interval of a convex function, found by golden section and bisection.
 """
 import math
 
@@ -101,3 +101,94 @@ def profile_time(fwd, bwd, th, n_grid):
             total += 2.0 * dth / den
         prev = r
     return total
+
+
+@njit(cache=True)
+def _pnorm_of(x, a, c, U, p, s):
+    """``‖(a x + c s) / U‖_p`` (scaled by its largest term: no overflow for large p)."""
+    m = 0.0
+    for i in range(3):
+        v = abs((a[i] * x + c[i] * s) / U[i])
+        if v > m:
+            m = v
+    if m == 0.0:
+        return 0.0
+    t = 0.0
+    for i in range(3):
+        t += (abs((a[i] * x + c[i] * s) / U[i]) / m) ** p
+    return m * t ** (1.0 / p)
+
+
+@njit(cache=True)
+def _edge(out, inside, a, c, U, p, s, tol):
+    """Bisection between ``out`` (norm > 1) and ``inside`` (norm ≤ 1): the sublevel set's edge,
+    on its feasible side."""
+    for _ in range(200):
+        if abs(inside - out) <= tol:
+            break
+        mid = 0.5 * (out + inside)
+        if _pnorm_of(mid, a, c, U, p, s) > 1.0:
+            out = mid
+        else:
+            inside = mid
+    return inside
+
+
+@njit(cache=True)
+def accel_interval_pnorm(a, c, U, p, s):
+    """Feasible ``θ̈`` at speed ``s`` for the p-norm bound: ``(lo, hi, ok)``. The set
+    ``{x : ‖(a x + c s) / U‖_p ≤ 1}`` is an interval (a convex function's sublevel set) inside
+    the per-axis one: its minimiser by golden section, then each edge by bisection."""
+    lo, hi, ok = accel_interval(a, c, U, s)
+    if not ok:
+        return 0.0, 0.0, False
+    g = 0.5 * (math.sqrt(5.0) - 1.0)
+    x0, x1 = lo, hi
+    xa = x1 - g * (x1 - x0)
+    xb = x0 + g * (x1 - x0)
+    fa = _pnorm_of(xa, a, c, U, p, s)
+    fb = _pnorm_of(xb, a, c, U, p, s)
+    tol = 1e-14 * max(1.0, hi - lo)
+    for _ in range(200):
+        if x1 - x0 <= tol:
+            break
+        if fa <= fb:
+            x1, xb, fb = xb, xa, fa
+            xa = x1 - g * (x1 - x0)
+            fa = _pnorm_of(xa, a, c, U, p, s)
+        else:
+            x0, xa, fa = xa, xb, fb
+            xb = x0 + g * (x1 - x0)
+            fb = _pnorm_of(xb, a, c, U, p, s)
+    xm = 0.5 * (x0 + x1)
+    # (on the maximum-velocity curve the interval is one point, feasible to rounding)
+    if _pnorm_of(xm, a, c, U, p, s) > 1.0 + 1e-12:
+        return 0.0, 0.0, False
+    left = _edge(lo, xm, a, c, U, p, s, tol) if _pnorm_of(lo, a, c, U, p, s) > 1.0 else lo
+    right = _edge(hi, xm, a, c, U, p, s, tol) if _pnorm_of(hi, a, c, U, p, s) > 1.0 else hi
+    return left, right, True
+
+
+@njit(cache=True)
+def sweep_pnorm(a, c, U, p, s_max, th, n_grid):
+    """``sweep_per_axis`` for the p-norm bound (the interval of ``accel_interval_pnorm``)."""
+    dth = th / n_grid
+    fwd = np.zeros(n_grid + 1)
+    bwd = np.zeros(n_grid + 1)
+    for k in range(n_grid):
+        s = fwd[k]
+        lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(s, s_max))
+        acc = hi if ok else 0.0
+        for _ in range(3):
+            lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(min(s + 2.0 * dth * acc, s_max), s_max))
+            acc = min(acc, hi if ok else 0.0)
+        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
+    for k in range(n_grid, 0, -1):
+        s = bwd[k]
+        lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(s, s_max))
+        dec = lo if ok else 0.0
+        for _ in range(3):
+            lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(min(s - 2.0 * dth * dec, s_max), s_max))
+            dec = max(dec, lo if ok else 0.0)
+        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
+    return fwd, bwd
