@@ -211,6 +211,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         from .collocation import solve_collocation
         return solve_collocation(prob, guess=guess, **col_opts)
     if method == "eigenaxis":
+        if guess is not None:
+            raise ValueError("guess: method='eigenaxis' plans the eigenaxis slew and takes no guess")
         from .eigenaxis_answer import eigenaxis_answer
         return eigenaxis_answer(prob)
     t0 = time.perf_counter()

@@ -91,3 +91,9 @@ def test_compiled_pnorm_sweep_matches_the_reference_interval():
             lo, hi = E._accel_interval(a, c, U, prob.torque_norm, s)
             lo2, hi2, ok = topp.accel_interval_pnorm(a, c, U, prob.torque_norm, s)
             assert ok and abs(lo2 - lo) < 1e-9 * max(1.0, abs(lo)) and abs(hi2 - hi) < 1e-9 * max(1.0, abs(hi))
+
+
+def test_eigenaxis_method_takes_no_guess():
+    p = SlewProblem([1, 1, 1], qf=[0, 0, 0, 1])
+    with pytest.raises(ValueError, match="^guess: method='eigenaxis' plans the eigenaxis slew"):
+        solvers.solve(p, method="eigenaxis", guess=solvers.Guess(np.ones(7), 3.0))
