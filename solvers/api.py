@@ -281,7 +281,7 @@ def _warm_start(prob, method, warm_start, options):
     if not isinstance(g, Guess):
         raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
     t_guess = time.perf_counter() - t0
-    t_inf = getattr(model, "last_inference_s", t_guess)
+    t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", t_guess))
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     total = float(options.get("time_budget", 20.0))
     budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET if prob.cones else WARM_BUDGET)), total)
@@ -357,7 +357,7 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
         if why:
             sol.warm_start = {"model": name, "role": "challenger", "covered": False, "reason": why}
             return sol
-        info["inference_s"] = getattr(model, "last_inference_s", math.nan)
+        info["inference_s"] = getattr(g, "inference_s", getattr(model, "last_inference_s", math.nan))
         if hasattr(model, "warm_up"):
             t_warm = model.warm_up(_warm_up_solve)
             if t_warm:

@@ -56,16 +56,20 @@ class ConeEnsembleWarmStart:
             return 0.0
         from .cone_features import canonical_problem
         t0 = time.perf_counter()
-        self._warm = True
         a = self.table.a
         touched = a["touch"].sum(axis=1) > 0
-        for rows in (np.flatnonzero(touched), np.flatnonzero(~touched)):
-            if rows.size:
-                try:
-                    p = canonical_problem(a["X"][int(rows[0])])
-                    solve(p, self.table.guess(p, k=1))
-                except ValueError:
-                    pass        # a warm-up only: any answer (or none) loads the kernels
+        try:
+            for rows in (np.flatnonzero(touched), np.flatnonzero(~touched)):
+                if rows.size:
+                    try:
+                        p = canonical_problem(a["X"][int(rows[0])])
+                        solve(p, self.table.guess(p, k=1))
+                    except ValueError:
+                        pass        # a warm-up only: any answer (or none) loads the kernels
+        finally:
+            # once, whatever happened (set after the solves: a concurrent first call warms too,
+            # rather than racing ahead with cold kernels)
+            self._warm = True
         return time.perf_counter() - t0
 
     def covers(self, problem):
@@ -88,7 +92,8 @@ class ConeEnsembleWarmStart:
         first = cands[0]
         first.candidates = cands[1:]
         first.touch_probabilities = getattr(g_net, "touch_probabilities", None)
-        self.last_inference_s = time.perf_counter() - t0
+        # on the guess too: the model object is shared (cached), the guess is this call's
+        first.inference_s = self.last_inference_s = time.perf_counter() - t0
         return first, None
 
     def guess(self, problem):
