@@ -261,9 +261,6 @@ def _warm_start(prob, method, warm_start, options):
     if model is None:
         return None, {}
     name = getattr(model, "name", type(model).__name__)
-    # a model may load the solver's compiled code first, so that its candidates' time caps
-    # measure solving, not loading (once per process)
-    t_warm = model.warm_up(_warm_up_solve) if prob.cones and hasattr(model, "warm_up") else 0.0
     t0 = time.perf_counter()
     try:
         if hasattr(model, "guess_or_reason"):
@@ -282,6 +279,10 @@ def _warm_start(prob, method, warm_start, options):
         raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
     t_guess = time.perf_counter() - t0
     t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", t_guess))
+    # a model may load the solver's compiled code first (once per process), so that its
+    # candidates' time caps measure solving, not loading; not counted in the solve's time
+    t_warm = model.warm_up(_warm_up_solve) if prob.cones and hasattr(model, "warm_up") else 0.0
+    t0 += t_warm
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     total = float(options.get("time_budget", 20.0))
     budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET if prob.cones else WARM_BUDGET)), total)
@@ -349,31 +350,12 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
     model = warmstart.default_cone_model() if budget > 0 else None
     if model is None:
         return sol
-    name = getattr(model, "name", type(model).__name__)
-    info = {"model": name, "role": "challenger", "covered": True, "succeeded": False, "won": False}
-    t1 = time.perf_counter()
     try:
-        g, why = model.guess_or_reason(prob)
-        if why:
-            sol.warm_start = {"model": name, "role": "challenger", "covered": False, "reason": why}
-            return sol
-        info["inference_s"] = getattr(g, "inference_s", getattr(model, "last_inference_s", math.nan))
-        if hasattr(model, "warm_up"):
-            t_warm = model.warm_up(_warm_up_solve)
-            if t_warm:
-                info["warm_up_s"] = t_warm
-        opts = {k: v for k, v in options.items() if k not in ("warm_budget", "time_budget")}
-        t1 = time.perf_counter()
-        ch = _solve_learned_cones(prob, g, opts, budget)
+        ch, info = _warm_start(prob, "auto", "pointing-cones", dict(options, warm_budget=budget))
     except Exception as e:   # noqa: BLE001 - the verified answer stands; the failure is recorded
-        info["error"] = f"{type(e).__name__}: {e}"[:300]
-        info["time_s"] = time.perf_counter() - t1
-        sol.warm_start = info
-        sol.wall_time = time.perf_counter() - t0
-        return sol
-    info["time_s"] = time.perf_counter() - t1
-    if ch is not None:
-        info.update(succeeded=bool(ch.success), candidates=ch.n_candidates)
+        ch, info = None, {"model": getattr(model, "name", type(model).__name__), "covered": True,
+                          "succeeded": False, "error": f"{type(e).__name__}: {e}"[:300]}
+    info = dict(info, role="challenger", **({"won": False} if info.get("covered") else {}))
     if ch is None or not ch.success:
         sol.warm_start = info
         sol.wall_time = time.perf_counter() - t0
