@@ -32,19 +32,27 @@ def accel_interval(a, c, U, s):
 
 
 @njit(cache=True)
-def _amax(a, c, U, s, s_max):
-    lo, hi, ok = accel_interval(a, c, U, min(s, s_max))
+def _interval(a, c, U, p, s):
+    """Feasible ``θ̈`` at speed ``s``: the per-axis interval for ``p = inf``, else the p-norm one."""
+    if math.isinf(p):
+        return accel_interval(a, c, U, s)
+    return accel_interval_pnorm(a, c, U, p, s)
+
+
+@njit(cache=True)
+def _amax(a, c, U, p, s, s_max):
+    lo, hi, ok = _interval(a, c, U, p, min(s, s_max))
     return hi if ok else 0.0
 
 
 @njit(cache=True)
-def _amin(a, c, U, s, s_max):
-    lo, hi, ok = accel_interval(a, c, U, min(s, s_max))
+def _amin(a, c, U, p, s, s_max):
+    lo, hi, ok = _interval(a, c, U, p, min(s, s_max))
     return lo if ok else 0.0
 
 
 @njit(cache=True)
-def sweep_per_axis(a, c, U, s_max, th, n_grid):
+def _sweep(a, c, U, p, s_max, th, n_grid):
     """Forward (max acceleration) and backward (max deceleration) profiles of ``s`` on
     ``n_grid`` equal steps of ``θ`` in ``[0, th]``; the profile is ``min(fwd, bwd)``."""
     dth = th / n_grid
@@ -52,17 +60,23 @@ def sweep_per_axis(a, c, U, s_max, th, n_grid):
     bwd = np.zeros(n_grid + 1)
     for k in range(n_grid):
         s = fwd[k]
-        acc = _amax(a, c, U, s, s_max)
+        acc = _amax(a, c, U, p, s, s_max)
         for _ in range(3):
-            acc = min(acc, _amax(a, c, U, min(s + 2.0 * dth * acc, s_max), s_max))
+            acc = min(acc, _amax(a, c, U, p, min(s + 2.0 * dth * acc, s_max), s_max))
         fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
     for k in range(n_grid, 0, -1):
         s = bwd[k]
-        dec = _amin(a, c, U, s, s_max)
+        dec = _amin(a, c, U, p, s, s_max)
         for _ in range(3):
-            dec = max(dec, _amin(a, c, U, min(s - 2.0 * dth * dec, s_max), s_max))
+            dec = max(dec, _amin(a, c, U, p, min(s - 2.0 * dth * dec, s_max), s_max))
         bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
     return fwd, bwd
+
+
+@njit(cache=True)
+def sweep_per_axis(a, c, U, s_max, th, n_grid):
+    """The phase-plane sweeps (``_sweep``) for the per-axis bound."""
+    return _sweep(a, c, U, math.inf, s_max, th, n_grid)
 
 
 @njit(cache=True)
@@ -171,24 +185,5 @@ def accel_interval_pnorm(a, c, U, p, s):
 
 @njit(cache=True)
 def sweep_pnorm(a, c, U, p, s_max, th, n_grid):
-    """``sweep_per_axis`` for the p-norm bound (the interval of ``accel_interval_pnorm``)."""
-    dth = th / n_grid
-    fwd = np.zeros(n_grid + 1)
-    bwd = np.zeros(n_grid + 1)
-    for k in range(n_grid):
-        s = fwd[k]
-        lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(s, s_max))
-        acc = hi if ok else 0.0
-        for _ in range(3):
-            lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(min(s + 2.0 * dth * acc, s_max), s_max))
-            acc = min(acc, hi if ok else 0.0)
-        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
-    for k in range(n_grid, 0, -1):
-        s = bwd[k]
-        lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(s, s_max))
-        dec = lo if ok else 0.0
-        for _ in range(3):
-            lo, hi, ok = accel_interval_pnorm(a, c, U, p, min(min(s - 2.0 * dth * dec, s_max), s_max))
-            dec = max(dec, lo if ok else 0.0)
-        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
-    return fwd, bwd
+    """The phase-plane sweeps (``_sweep``) for the p-norm bound (``accel_interval_pnorm``)."""
+    return _sweep(a, c, U, p, s_max, th, n_grid)
