@@ -155,6 +155,7 @@ targets inside a cone are rejected by ``SlewProblem`` itself.
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections import OrderedDict
@@ -674,17 +675,17 @@ class _NLP:
 
     def with_rate_scale(self, scale) -> "_NLP":
         """This NLP with the rate limit scaled by ``scale`` (< 1: a back-off)."""
-        import copy
         other = copy.copy(self)
         f = scale / self.rate_scale
         other.lbx, other.ubx = self.lbx.copy(), self.ubx.copy()
         other.lbg, other.ubg = self.lbg.copy(), self.ubg.copy()
         for I in (self.iX, self.iXm):
             w = I[:, 4:7]
-            # the fixed start and end rates (rest) stay as they are
-            inner = np.abs(other.lbx[w]) < np.inf
-            other.lbx[w] = np.where(inner & (other.lbx[w] != other.ubx[w]), other.lbx[w] * f, other.lbx[w])
-            other.ubx[w] = np.where(inner & (self.lbx[w] != self.ubx[w]), other.ubx[w] * f, other.ubx[w])
+            # the fixed start and end rates (lb = ub) stay as they are; an unlimited axis's
+            # infinite bounds stay infinite (f > 0)
+            free = self.lbx[w] != self.ubx[w]
+            other.lbx[w] = np.where(free, self.lbx[w] * f, self.lbx[w])
+            other.ubx[w] = np.where(free, self.ubx[w] * f, self.ubx[w])
         if "rate_bernstein" in self.tpl.layout:
             a, b = self.tpl.layout["rate_bernstein"]
             other.lbg[a:b] *= f
@@ -1493,7 +1494,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                 break
     conv1 = sorted([r for r in stage1 if r.success], key=lambda r: r.T)
     agreeing = sum(1 for r in conv1 if r.source.endswith("perturbed") and abs(r.T - conv1[0].T) <= 1e-3 * conv1[0].T)
-    evidence["escaped"] = max(int(evidence.get("escaped", 0)), agreeing)
+    evidence["escaped"] = max(evidence.get("escaped", 0), agreeing)
     coarse_tf = sorted({round(r.T * sc.tau, 6) for r in conv1})
     # ---- stage 2: refine on N
     finals = []      # (run, coarse T)
@@ -1611,11 +1612,11 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         # eigenaxis slew itself — a stationary point that IPOPT cannot leave when the guess
         # has the symmetry of a slew about a principal axis (R5 from its plain eigenaxis
         # guess); precession makes per-axis optima 5-20 % faster. Perturbed starts break that
-        # symmetry: when at least two of them converge and none beats it by 0.1 %, the optimum
-        # is that close to the eigenaxis slew (small slews, where the two agree to first order)
-        # (the perturbed starts that reached the best coarse answer; a refinement of this
-        # answer on a finer mesh carries the count over in ``evidence``)
-        escaped = max(int(evidence.get("escaped", 0)), agreeing)
+        # symmetry: when at least two of them reach the best coarse answer and it does not beat
+        # the eigenaxis slew by 0.1 %, the optimum is that close to it (small slews, where the
+        # two agree to first order). The count (``evidence``, set after stage 1) carries over
+        # to a refinement of this answer on a finer mesh
+        escaped = evidence["escaped"]
         near = fields["tf"] >= baseline * (1 - 1e-3)
         saddle = math.isinf(sc.p) and near and escaped < 2
         if slower or saddle:
