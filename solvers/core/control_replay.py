@@ -40,9 +40,21 @@ def quadratic_control(s, Uk, Um, Uk1, Ulim, p):
 
 
 @njit(cache=True)
-def _deriv(x, s, Uk, Um, Uk1, Ulim, p, J):
-    u0, u1, u2 = quadratic_control(s, Uk, Um, Uk1, Ulim, p)
-    return state_rhs_scalar(x[0], x[1], x[2], x[3], x[4], x[5], x[6], u0, u1, u2, J[0], J[1], J[2])
+def _rk4_step(x, y, h, ua, um, ub, J):
+    """One classical RK4 step of ``x`` in place (``y``: scratch) under a control that takes the
+    values ``ua``, ``um``, ``ub`` at the step's start, middle and end."""
+    k1 = state_rhs_scalar(x[0], x[1], x[2], x[3], x[4], x[5], x[6], ua[0], ua[1], ua[2], J[0], J[1], J[2])
+    for i in range(7):
+        y[i] = x[i] + 0.5 * h * k1[i]
+    k2 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], um[0], um[1], um[2], J[0], J[1], J[2])
+    for i in range(7):
+        y[i] = x[i] + 0.5 * h * k2[i]
+    k3 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], um[0], um[1], um[2], J[0], J[1], J[2])
+    for i in range(7):
+        y[i] = x[i] + h * k3[i]
+    k4 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], ub[0], ub[1], ub[2], J[0], J[1], J[2])
+    for i in range(7):
+        x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
 @njit(cache=True)
@@ -66,18 +78,9 @@ def replay_quadratic_control(x0, tk, U, Um, Ulim, p, J, samples, substeps):
         dh = 1.0 / m
         for j in range(m):
             s = j * dh
-            k1 = _deriv(x, s, U[k], Um[k], U[k + 1], Ulim, p, J)
-            for i in range(7):
-                y[i] = x[i] + 0.5 * L * dh * k1[i]
-            k2 = _deriv(y, s + 0.5 * dh, U[k], Um[k], U[k + 1], Ulim, p, J)
-            for i in range(7):
-                y[i] = x[i] + 0.5 * L * dh * k2[i]
-            k3 = _deriv(y, s + 0.5 * dh, U[k], Um[k], U[k + 1], Ulim, p, J)
-            for i in range(7):
-                y[i] = x[i] + L * dh * k3[i]
-            k4 = _deriv(y, s + dh, U[k], Um[k], U[k + 1], Ulim, p, J)
-            for i in range(7):
-                x[i] += L * dh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            _rk4_step(x, y, L * dh, quadratic_control(s, U[k], Um[k], U[k + 1], Ulim, p),
+                      quadratic_control(s + 0.5 * dh, U[k], Um[k], U[k + 1], Ulim, p),
+                      quadratic_control(s + dh, U[k], Um[k], U[k + 1], Ulim, p), J)
             n += 4
             if (j + 1) % substeps == 0:
                 t[row] = a + (j + 1) * dh * L
@@ -107,19 +110,6 @@ def replay_eigenaxis_profile(x0, t, rate, acc, a, c, J, substeps):
         h = L / substeps
         for j in range(substeps):
             s = j * h
-            u0, u1, u2 = _eigen_torque(k, s, rate, acc, a, c)
-            k1 = state_rhs_scalar(x[0], x[1], x[2], x[3], x[4], x[5], x[6], u0, u1, u2, J[0], J[1], J[2])
-            u0, u1, u2 = _eigen_torque(k, s + 0.5 * h, rate, acc, a, c)
-            for i in range(7):
-                y[i] = x[i] + 0.5 * h * k1[i]
-            k2 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
-            for i in range(7):
-                y[i] = x[i] + 0.5 * h * k2[i]
-            k3 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
-            u0, u1, u2 = _eigen_torque(k, s + h, rate, acc, a, c)
-            for i in range(7):
-                y[i] = x[i] + h * k3[i]
-            k4 = state_rhs_scalar(y[0], y[1], y[2], y[3], y[4], y[5], y[6], u0, u1, u2, J[0], J[1], J[2])
-            for i in range(7):
-                x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            _rk4_step(x, y, h, _eigen_torque(k, s, rate, acc, a, c), _eigen_torque(k, s + 0.5 * h, rate, acc, a, c),
+                      _eigen_torque(k, s + h, rate, acc, a, c), J)
     return x
