@@ -76,6 +76,14 @@ TENSOR_KEYS = {"X": "float", "Z": "float", "log_T_ratio": "float", "touch": "flo
                "log_nu": "float", "present": "float", "U": "float", "counts": "long", "F": "float"}
 
 
+def nearest_table(paths, max_switches=5, k=3):
+    """The exact solutions of ``paths`` as a ``ConeNearestNeighbourModel`` (the
+    nearest-neighbour baseline of ``slew evaluate``, and the table shipped with the model)."""
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    a = training_arrays(paths, max_switches=max_switches)
+    return ConeNearestNeighbourModel(a, k=k, name=f"nearest-neighbour (k={k}, {a['X'].shape[0]} solutions)")
+
+
 def losses(out, batch, cfg, torch):
     """Total loss, its parts and validation metrics (see ``training.warmstart.train``)."""
     F = torch.nn.functional

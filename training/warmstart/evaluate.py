@@ -140,11 +140,8 @@ def inference_time(model, family, seed, n=200):
 
 def build_nn(data_paths, out_path, max_switches=5, k=3, family="full-attitude"):
     if family == "pointing-cones":
-        from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
-        from .cone_data import training_arrays as cone_arrays
-        a = cone_arrays(data_paths, max_switches=max_switches)
-        nn = ConeNearestNeighbourModel(a, k=k, name=f"nearest-neighbour (k={k}, {a['X'].shape[0]} solutions)")
-        nn.save(out_path)
+        from .cone_data import nearest_table
+        nearest_table(data_paths, max_switches, k).save(out_path)
         return out_path
     from solvers.warmstart import NearestNeighbourModel
     from .data import training_arrays

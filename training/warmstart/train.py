@@ -225,10 +225,9 @@ def cone_table_path(model_path):
 def export_cone_table(data_paths, path, max_switches, k=4):
     """The exact solutions of ``data_paths`` as a compact nearest-neighbour table (float32,
     compressed; ``solvers.warmstart.cone_nearest``)."""
-    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
-    from .cone_data import training_arrays
-    a = training_arrays(data_paths, max_switches=max_switches)
-    table = ConeNearestNeighbourModel(a, k=k, name=f"pointing-cones solutions ({a['X'].shape[0]:,} exact)")
+    from .cone_data import nearest_table
+    table = nearest_table(data_paths, max_switches, k)
+    table.name = f"pointing-cones solutions ({table.a['X'].shape[0]:,} exact)"
     table.save(path, compact=True)
     return path
 
