@@ -56,7 +56,7 @@ from .eigenaxis import eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
-from .verify import make_check, verify
+from .verify import DENSE_STEPS, make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
@@ -103,7 +103,7 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
 
     count = 0
     if guess is not None:
-        for g in guess.all():
+        for g in guess.iter_all():
             z, T = g.to_nondim(bvp)
             st = _structure_from_guess(g, bvp)
             if count < max_candidates and fresh(z, st):
@@ -182,7 +182,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
     default 1; 0.2 with keep-out cones), ``tols`` (verification tolerances, see
-    ``solvers.verify``), ``n_dense`` (dense samples, ≥ 400 steps), ``eps_min`` (end of the
+    ``solvers.verify``), ``n_dense`` (the dense record's steps are capped at ``tf / n_dense``; default 100, samples at
+    every step and both sides of every switch), ``eps_min`` (end of the
     smoothing path, default 1e-3), ``rtol``/``atol`` (integrator). ``collocation``: a dict
     of options for ``solvers.collocation.solve_collocation`` (``method="collocation"`` and
     the collocation stage of ``"auto"``).
@@ -290,7 +291,7 @@ def _warm_start(prob, method, warm_start, options):
     if prob.cones:
         sol = _solve_learned_cones(prob, g, opts, budget)
     else:
-        opts.update(max_candidates=len(g.all()), min_candidates=1, enough=1, time_budget=budget)
+        opts.update(max_candidates=1 + len(g.candidates), min_candidates=1, enough=1, time_budget=budget)
         sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
@@ -443,7 +444,7 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
     indirect_ok = not prob.cones
     tried_guess = None
     if guess is not None and indirect_ok:
-        opts = dict(options, max_candidates=len(guess.all()), min_candidates=1)
+        opts = dict(options, max_candidates=1 + len(guess.candidates), min_candidates=1)
         tried_guess = _solve_indirect(prob, "indirect", guess, **opts)
         if tried_guess.success:
             tried_guess.route = f"auto: given guess → {tried_guess.route}"
@@ -649,7 +650,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     seed = options.get("seed", 0)
     budget = float(options.get("time_budget", 20.0))
     tols = options.get("tols")
-    n_dense = int(options.get("n_dense", 400))
+    n_dense = int(options.get("n_dense", DENSE_STEPS))
     eps_min = float(options.get("eps_min", 1e-3))
     kw = {}
     if "rtol" in options:
@@ -699,8 +700,8 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             bvp.set_mode("bang")
         else:
             bvp.set_mode("pnorm", p=prob.torque_norm)
-        # the event check's record (T / 400 steps) of the same (z, T) serves as the dense record
-        reuse = a.trajectory if (per_axis and n_dense == 400) else None
+        # the event check's record (T / DENSE_STEPS steps) of the same (z, T) serves as the dense record
+        reuse = a.trajectory if (per_axis and n_dense == DENSE_STEPS) else None
         ok, checks, text, tr = verify(bvp, a.z, a.T, a.structure, tols=tols, n_dense=n_dense, trajectory=reuse)
         nfev += 2
         if not ok:

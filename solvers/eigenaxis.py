@@ -99,6 +99,17 @@ def _phase_plane(problem: SlewProblem):
     return n, th, a, c, min(s_mvc, s_rate)
 
 
+def _constant_accel_time(th, acc, s_max) -> float:
+    """Rest-to-rest time over angle ``th`` at constant acceleration ``acc`` (the same
+    deceleration), with the speed capped at ``sqrt(s_max)``: bang-bang, or bang-coast-bang."""
+    if not acc > 0.0:
+        return math.inf
+    if acc * th <= s_max:              # the triangle's peak speed² is acc·th
+        return 2.0 * math.sqrt(th / acc)
+    w = math.sqrt(s_max)
+    return th / w + w / acc
+
+
 def _checked(problem) -> SlewProblem:
     if not isinstance(problem, SlewProblem):
         problem = SlewProblem.from_dict(problem)
@@ -119,6 +130,10 @@ def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
     if th == 0.0:
         return 0.0
     U = np.ascontiguousarray(problem.torque_max, float)
+    if not np.any(c):
+        # no gyroscopic term (a symmetric body, or a principal axis): the feasible
+        # accelerations do not depend on the rate, so the profile is bang-(coast-)bang
+        return _constant_accel_time(th, topp.accel_interval(a, c, U, 0.0)[1], s_max)
     fwd, bwd = topp.sweep_per_axis(a, c, U, float(s_max), float(th), int(n_grid))
     return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
 

@@ -5,7 +5,8 @@ A ``Guess`` is given in the units of the problem (the same units as a
 gauge: the solver projects out the component of ``λq(0)`` along ``q(0)``), ``tf``,
 optionally the switch times per axis and the sign of each axis's first arc (a
 bang-bang guess can then go straight to the exact switch-time solver), and
-optionally further ``candidates`` tried in order. A learned model returns the same
+optionally further ``candidates`` tried in order (a candidate may be deferred: a function
+returning a ``Guess`` or ``None``, called only if the solver reaches it). A learned model returns the same
 type (``Guess(costate0=..., tf=..., switch_times=..., source="learned")``).
 
 Classical guesses provided here:
@@ -76,8 +77,31 @@ class Guess:
             self.touches = sorted(rows, key=lambda r: r[1])
 
     def all(self):
-        """This guess followed by its candidates."""
-        return [self] + list(self.candidates)
+        """This guess followed by its candidates (deferred ones computed now)."""
+        return list(self.iter_all())
+
+    def iter_all(self):
+        """This guess followed by its candidates, a deferred candidate (a function of no
+        arguments returning a ``Guess`` or ``None``) computed only when it is reached, once:
+        a solver that converges on the first guess never pays for the later ones."""
+        yield self
+        k = 0
+        while k < len(self.candidates):
+            c = self.candidates[k]
+            if not isinstance(c, Guess):
+                if not callable(c):
+                    raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
+                                     f"got {type(c).__name__}")
+                c = c()
+                if c is not None and not isinstance(c, Guess):
+                    raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
+                                     f"{type(c).__name__}, expected a Guess or None")
+                if c is None:           # nothing to add (e.g. the same as an earlier candidate)
+                    del self.candidates[k]
+                    continue
+                self.candidates[k] = c
+            yield c
+            k += 1
 
     # --- conversion to / from the solver's nondimensional unknowns
     def to_nondim(self, bvp, with_norm=False):

@@ -23,6 +23,7 @@ from .core import attitude_flow as af
 from .homotopy import continue_path, set_pnorm, set_tanh, structure_candidates
 from .shooting import newton_shoot
 from .switch_time import Structure, solve_switch_times
+from .verify import DENSE_STEPS
 
 
 @dataclass
@@ -37,10 +38,10 @@ class Attempt:
     message: str
     residual: float = math.inf
     history: list = field(default_factory=list)
-    trajectory: object = None   # the event-driven record (T / 400 steps) that confirmed the structure
+    trajectory: object = None   # the event-driven record (T / DENSE_STEPS steps) that confirmed the structure
 
 
-def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=400):
+def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=DENSE_STEPS):
     """Event-driven propagation of ``(z, T)``: does it reproduce ``structure``?
 
     Steps are capped at ``T / n_steps`` (as in the verification) so that a switching

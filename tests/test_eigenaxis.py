@@ -61,3 +61,32 @@ def test_rate_limit_creates_a_coast_arc():
 def test_eigenaxis_rejects_pointing_targets():
     with pytest.raises(ValueError, match="sensor_target"):
         eigenaxis_slew(SlewProblem([1, 1, 1], sensor_target=[0, 1, 0]))
+
+
+@pytest.mark.parametrize("J, axis, rate_max", [
+    ([1, 1, 1], [1, 2, 3], None),                      # symmetric body: bang-bang
+    ([2, 2, 2], [1, -1, 0.5], 0.05),                   # symmetric body, rate cap: bang-coast-bang
+    ([5621, 4547, 2364], [1, 0, 0], None),             # principal axis of an asymmetric body
+    ([3, 2, 1], [0, 1, 0], [0.01, 0.02, 0.03]),        # principal axis, rate cap
+])
+def test_baseline_time_without_gyroscopic_term_is_the_closed_form(J, axis, rate_max):
+    # the solver's gate (eigenaxis_time) takes the closed form when n × Jn = 0; it must agree
+    # with the planner's own profile, and never be slower than a fine grid (conservative)
+    from solvers.eigenaxis import eigenaxis_time, _phase_plane
+    import solvers.core.eigenaxis_topp as topp
+    prob = _prob(J, axis, 2.2, torque_max=[1.0, 0.7, 0.4], rate_max=rate_max)
+    n, th, a, c, s_max = _phase_plane(prob)
+    assert not np.any(c)
+    fwd, bwd = topp.sweep_per_axis(a, c, np.asarray(prob.torque_max, float), float(s_max), float(th), 200000)
+    fine = topp.profile_time(fwd, bwd, float(th), 200000)
+    T = eigenaxis_time(prob, n_grid=1000)
+    assert T == pytest.approx(fine, rel=1e-8) and T <= fine * (1 + 1e-14)
+    # the planner's 4000-step grid is conservative by up to ~3e-6 where the rate cap starts
+    assert T <= eigenaxis_slew(prob).tf <= T * (1 + 1e-5)
+
+
+def test_baseline_time_of_an_asymmetric_body_off_axis_is_unchanged():
+    # the sweep's fixed-point rounds stop when the acceleration stops changing: same profile
+    prob = _prob([1.0, 0.6, 0.3], [1, 1, 1], 2.5, torque_max=[1.0, 0.8, 0.5])
+    from solvers.eigenaxis import eigenaxis_time
+    assert eigenaxis_time(prob, n_grid=4000) == pytest.approx(eigenaxis_slew(prob, n_grid=4000).tf, rel=1e-12)

@@ -314,3 +314,40 @@ def test_first_candidate_runs_even_when_the_budget_is_spent():
     assert s.warm_start["candidates"] >= 1
     if s.warm_start["succeeded"]:
         assert s.guess.startswith("learned")
+
+
+def test_deferred_candidates_run_only_when_reached():
+    r = _exact()[5]
+    prob = SlewProblem.from_dict(r["problem"])
+    calls = []
+
+    def never():
+        calls.append("never")
+        raise AssertionError("a deferred candidate after a converged one must not be computed")
+
+    class Model:
+        name = "deferred"
+
+        def __init__(self, g):
+            self.g = g
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            return self.g
+
+    good = Guess(r["costate0"], r["tf"], [np.asarray(s) for s in r["switch_times"]], r["u_first"], source="learned",
+                 candidates=[never])
+    s = solve(prob, method="indirect", warm_start=Model(good))
+    assert s.success and s.guess == "learned" and calls == []
+    # a failing first guess reaches the deferred ones; None entries are dropped
+    bad = Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="bad",
+                candidates=[lambda: None, lambda: calls.append("made") or Guess(r["costate0"], r["tf"], source="deferred")])
+    s2 = solve(prob, method="indirect", warm_start=Model(bad))
+    assert calls == ["made"] and s2.success and s2.guess == "deferred" and s2.warm_start["succeeded"]
+    assert [g.source for g in bad.all()] == ["bad", "deferred"]
+    with pytest.raises(ValueError, match=r"guess.candidates\[0\]"):
+        Guess(r["costate0"], r["tf"], candidates=[3.0]).all()
+    with pytest.raises(ValueError, match="deferred candidate returned str"):
+        Guess(r["costate0"], r["tf"], candidates=[lambda: "x"]).all()

@@ -62,13 +62,19 @@ def _sweep(a, c, U, p, s_max, th, n_grid):
         s = fwd[k]
         acc = _amax(a, c, U, p, s, s_max)
         for _ in range(3):
-            acc = min(acc, _amax(a, c, U, p, min(s + 2.0 * dth * acc, s_max), s_max))
+            nxt = min(acc, _amax(a, c, U, p, min(s + 2.0 * dth * acc, s_max), s_max))
+            if nxt == acc:      # a fixed point: further rounds repeat the same evaluation
+                break
+            acc = nxt
         fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
     for k in range(n_grid, 0, -1):
         s = bwd[k]
         dec = _amin(a, c, U, p, s, s_max)
         for _ in range(3):
-            dec = max(dec, _amin(a, c, U, p, min(s - 2.0 * dth * dec, s_max), s_max))
+            nxt = max(dec, _amin(a, c, U, p, min(s - 2.0 * dth * dec, s_max), s_max))
+            if nxt == dec:
+                break
+            dec = nxt
         bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
     return fwd, bwd
 

@@ -271,12 +271,15 @@ class WarmStartModel:
         self.last_inference_s = time.perf_counter() - t0
         g = Guess(c0, tf, sw, uf, source="learned")
         if propagate:
-            prop = _propagated_structure(problem, c0, tf)
-            if prop is not None:
+            # deferred: one propagation (~0.25 ms), paid only when the first candidate fails
+            def propagated():
+                prop = _propagated_structure(problem, c0, tf)
+                if prop is None:
+                    return None
                 sw_p, uf_p = prop
                 same = (np.array_equal(uf_p, g.u_first) and all(len(a) == len(b) for a, b in zip(sw_p, sw)))
-                if not same:
-                    g.candidates.append(Guess(c0, tf, sw_p, uf_p, source="learned-propagated"))
+                return None if same else Guess(c0, tf, sw_p, uf_p, source="learned-propagated")
+            g.candidates.append(propagated)
         g.candidates.append(Guess(c0, tf, source="learned-costate"))
         return g, None
 
