@@ -1,0 +1,391 @@
+"""Bang-bang switch-time optimisation: the fastest bang-bang slew with a given switching sequence.
+
+About one random per-axis slew in six has no bang-bang optimum: one axis's switching function
+vanishes over an interval (an order-2 singular arc, whose junctions chatter). No finite list of
+switch times is an extremal there, and the answer ``auto`` had was collocation's piecewise
+quadratic control, with its discretisation error at the target. This module gives those
+problems a bang-bang answer that reaches the target *exactly*:
+
+    minimise  tf   over the switch instants t_1 … t_n and tf,
+    subject to     the boundary conditions (6, full-attitude target),
+                   each axis's switches in order, 0 ≤ t_k ≤ tf,
+
+for a fixed switching sequence (the sign of each axis's first arc and the axis of each switch),
+taken from the collocation answer, with a zero-width pulse pair added on the most interior axis
+while there are fewer unknowns than boundary conditions. The states are propagated arc by arc
+with their 7×7 transition matrices (the compiled DOP853 flow), so the gradients are exact:
+``∂x(tf)/∂t_k = Φ(tf, t_k) (f(x_k, u_k⁻) - f(x_k, u_k⁺))`` and ``∂x(tf)/∂tf = f(x(tf), u)``.
+SLSQP finds the optimum; a minimum-norm Newton polish brings the boundary residual to rounding.
+
+The optimum of this finite problem is feasible and exact to the last digit, but it is a
+*restriction* of the original problem: where the optimal control is singular it is an upper
+bound on the optimal time (a finer sequence gets closer). Its KKT multipliers give costates
+(``λ(tf) = ±νᵀ ∂r/∂x``, carried back by the transition matrices), from which the exact
+bang-bang solver is tried first: if the optimum is in fact bang-bang with this sequence, the
+answer is a verified extremal.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .attitude_bvp import NY, AttitudeBVP
+from .core.attitude_flow import ext_rhs
+
+_E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
+
+
+@dataclass
+class SwitchTimeOptResult:
+    success: bool
+    message: str
+    T: float                    # nondimensional final time
+    times: np.ndarray           # (n,) switch instants (nondimensional), in the sequence's order
+    axes: np.ndarray            # (n,) axis of each switch
+    signs0: np.ndarray          # (3,) sign of each axis's first arc
+    residual: float             # boundary residual norm at the answer
+    nit: int
+    nfev: int
+    z: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))   # costates from the KKT multipliers
+    kkt: float = math.nan       # residual of the stationarity condition (0 at a KKT point)
+    converged: bool = False     # SLSQP reached a KKT point (else: its iteration limit, still feasible)
+
+    def switch_times(self):
+        """Per-axis sorted switch instants (nondimensional)."""
+        return [np.sort(self.times[self.axes == i]) for i in range(3)]
+
+
+def _forward(bvp, times, axes, signs0, T, y0, want_jac):
+    """End state and, with ``want_jac``, ``(r, J_r, M_total, G)``: residual (6), its Jacobian in
+    ``[times, T]``, the state transition matrix over ``[0, T]`` (7×7)."""
+    n = times.shape[0]
+    order = np.argsort(times, kind="stable")
+    signs = np.array(signs0, float)
+    y = y0.copy()
+    t = 0.0
+    mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
+    jumps = []          # f⁻ - f⁺ at each event, in time order
+    nfev = 0
+    for k in order:
+        tk = min(max(float(times[k]), 0.0), T)
+        dt = tk - t
+        if dt > 0.0:
+            y, Phi, ok = bvp.arc(y, dt, signs, _E7 if want_jac else None)
+            nfev += 1
+            if not ok:
+                return None
+            if want_jac:
+                mats.append(Phi[:7, :7].copy())
+            t = tk
+        elif want_jac:
+            mats.append(np.eye(7))
+        a = int(axes[k])
+        if want_jac:
+            u_before = bvp.umax * signs
+            s_after = signs.copy()
+            s_after[a] = -s_after[a]
+            jumps.append(ext_rhs(y, u_before, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
+        signs[a] = -signs[a]
+    dt = T - t
+    if dt > 0.0:
+        y, Phi, ok = bvp.arc(y, dt, signs, _E7 if want_jac else None)
+        nfev += 1
+        if not ok:
+            return None
+        if want_jac:
+            mats.append(Phi[:7, :7].copy())
+    elif want_jac:
+        mats.append(np.eye(7))
+    r, D, _ = bvp.terminal(y, T)
+    if not want_jac:
+        return y, r, nfev
+    D7 = D[:, :7]
+    dx = np.empty((7, n + 1))
+    G = np.eye(7)
+    # Φ(T, t_k) = M_last … M_{k+1}: accumulated backwards
+    for j in range(n - 1, -1, -1):
+        G = G @ mats[j + 1]
+        dx[:, order[j]] = G @ jumps[j]
+    dx[:, n] = ext_rhs(y, bvp.umax * signs, bvp.J)[:7]
+    M_total = G @ mats[0]
+    return y, r, D7 @ dx, D7, M_total, nfev
+
+
+def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=300,
+                          bvp=None) -> SwitchTimeOptResult:
+    """The fastest bang-bang slew of ``problem`` (per-axis bound, full-attitude target) with the
+    switching sequence ``(signs0, axes)``, from the nondimensional instants ``times`` and final
+    time ``T`` (module docstring)."""
+    from scipy.optimize import minimize
+    bvp = bvp if bvp is not None else AttitudeBVP(problem)
+    if bvp.pointing:
+        raise ValueError("sensor_target: switch-time optimisation needs a full-attitude target (qf)")
+    if not math.isinf(bvp.problem.torque_norm):
+        raise ValueError("torque_norm: switch-time optimisation is for the per-axis bound")
+    bvp.set_mode("bang")
+    axes = np.asarray(axes, dtype=np.int64)
+    signs0 = np.asarray(signs0, float)
+    n = axes.shape[0]
+    y0 = np.zeros(NY)
+    y0[0:4] = bvp.q0
+    y0[4:7] = bvp.w0
+    t_start = time.perf_counter()
+    stats = {"nfev": 0, "nit": 0}
+    cache = {}
+
+    def evaluate(v):
+        key = v.tobytes()
+        if key not in cache:
+            if time.perf_counter() - t_start > time_budget:
+                raise TimeoutError
+            out = _forward(bvp, v[:n], axes, signs0, float(v[n]), y0, True)
+            if out is None:
+                raise FloatingPointError("propagation failed")
+            stats["nfev"] += out[-1]
+            cache.clear()
+            cache[key] = out
+        return cache[key]
+
+    # linear inequalities: each axis's switches in order, 0 ≤ t_k ≤ T
+    rows = []
+    for a in range(3):
+        idx = np.flatnonzero(axes == a)
+        for i0, i1 in zip(idx, idx[1:]):
+            row = np.zeros(n + 1)
+            row[i1], row[i0] = 1.0, -1.0
+            rows.append(row)
+    for j in range(n):
+        row = np.zeros(n + 1)
+        row[j] = 1.0
+        rows.append(row)
+        row = np.zeros(n + 1)
+        row[n], row[j] = 1.0, -1.0
+        rows.append(row)
+    A = np.array(rows) if rows else np.zeros((0, n + 1))
+    e_T = np.zeros(n + 1)
+    e_T[n] = 1.0
+    v0 = np.concatenate([np.clip(np.asarray(times, float), 0.0, T), [T]])
+    cons = [{"type": "eq", "fun": lambda v: evaluate(v)[1], "jac": lambda v: evaluate(v)[2]}]
+    if A.shape[0]:
+        cons.append({"type": "ineq", "fun": lambda v: A @ v, "jac": lambda v: A})
+    fail = None
+    try:
+        res = minimize(lambda v: v[n], v0, jac=lambda v: e_T, constraints=cons, method="SLSQP",
+                       bounds=[(0.0, None)] * (n + 1), options={"maxiter": max_iter, "ftol": 1e-13})
+        v = res.x
+        stats["nit"] = int(res.nit)
+        # at the iteration limit the iterate is kept: the polish below makes it feasible, and a
+        # feasible sequence is an answer (its tf an upper bound) whether or not it is stationary
+        converged = bool(res.success)
+        note = "a KKT point" if converged else f"SLSQP stopped ({res.message})"
+    except TimeoutError:
+        return SwitchTimeOptResult(False, f"time budget ({time_budget:g} s) exhausted", T, np.asarray(times, float),
+                                   axes, signs0, math.inf, stats["nit"], stats["nfev"])
+    except FloatingPointError as e:
+        return SwitchTimeOptResult(False, str(e), T, np.asarray(times, float), axes, signs0, math.inf,
+                                   stats["nit"], stats["nfev"])
+    # polish the boundary conditions: minimum-norm Newton steps (the residual is exact, the
+    # steps are tiny, the inequalities stay as SLSQP left them)
+    try:
+        for _ in range(8):
+            _, r, Jr, *_ = evaluate(v)
+            if np.linalg.norm(r) < 1e-14:
+                break
+            v = v - np.linalg.lstsq(Jr, r, rcond=None)[0]
+        y, r, Jr, D7, M, _ = evaluate(v)
+    except (TimeoutError, FloatingPointError) as e:
+        return SwitchTimeOptResult(False, f"polish: {type(e).__name__} {e}", float(v[n]), v[:n].copy(), axes, signs0,
+                                   math.inf, stats["nit"], stats["nfev"])
+    resid = float(np.linalg.norm(r))
+    if fail is None and not (resid < 1e-10):
+        fail = f"boundary residual {resid:.2e} after the polish"
+    if fail is None and (np.any(A @ v < -1e-12) or np.any(v < -1e-12)):
+        fail = "switch instants out of order"
+    # KKT: e_T = J_rᵀ ν + (active inequalities); with the inequalities inactive (no zero-length
+    # arc), ν by least squares and its residual measures stationarity
+    nu, *_ = np.linalg.lstsq(Jr.T, e_T, rcond=None)
+    kkt = float(np.linalg.norm(Jr.T @ nu - e_T))
+    # the state's costate at tf, λ(tf) = -νᵀ ∂r/∂x (the sign of the solver's convention: on R3
+    # the exact extremal's costates come back to rounding), carried back to t = 0
+    lam_T = -(D7.T @ nu)
+    lam_0 = M.T @ lam_T
+    mu = _quat_left_conj(bvp.q0, lam_0[0:4])
+    z = np.concatenate([mu, lam_0[4:7]])
+    nz = float(np.linalg.norm(z))
+    z = z / nz if nz > 0 else np.full(6, np.nan)
+    ok = fail is None
+    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), v[:n].copy(), axes, signs0, resid,
+                               stats["nit"], stats["nfev"], z, kkt, converged)
+
+
+def _quat_left_conj(q0, lq):
+    """``Im(q0* ⊗ λq)``: the costate of the attitude in the solver's parameters ``μ``."""
+    from slew_env.core.quaternion import qconj, qmul
+    return qmul(qconj(q0), lq)[1:4]
+
+
+def sequence_from_samples(t, u, umax, switch_times, u_first, min_unknowns=7, interior=0.98):
+    """A switching sequence ``(signs0, axes, times)`` for ``optimise_switch_times`` from a
+    collocation answer: its zero crossings (``switch_times``, ``u_first``), plus zero-width pulse
+    pairs on the axis whose torque is interior (``|u| < interior·umax``) the longest, at its most
+    interior sample, until there are at least ``min_unknowns`` unknowns (switches + tf)."""
+    signs0 = np.where(np.asarray(u_first, float) < 0, -1.0, 1.0)
+    axes = [a for a in range(3) for _ in switch_times[a]]
+    times = [float(s) for a in range(3) for s in switch_times[a]]
+    v = np.abs(np.asarray(u, float)) / np.asarray(umax, float)[None, :]
+    frac = np.mean(v < interior, axis=0)
+    order = [int(a) for a in np.argsort(-frac, kind="stable")]
+    k = 0
+    while len(times) + 1 < min_unknowns:
+        a = order[k % 3]
+        # the most interior sample of that axis not already holding a pulse
+        cand = np.argsort(v[:, a], kind="stable")
+        tc = float(t[int(cand[min(k // 3, len(cand) - 1)])])
+        axes += [a, a]
+        times += [tc, tc]
+        k += 1
+    o = np.argsort(times, kind="stable")
+    return signs0, np.asarray(axes, dtype=np.int64)[o], np.asarray(times, float)[o]
+
+
+# SLSQP iterations for auto's bang-bang answer: on held-out singular problems 20 iterations
+# already reach within ~1e-5 (relative) of the 300-iteration tf, below collocation's
+SLSQP_ITERATIONS = 60
+
+
+def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
+    """A verified bang-bang answer from a collocation answer ``col`` of a rest-to-rest-or-not,
+    full-attitude, per-axis problem without cones, or ``None`` when it does not apply or is
+    not at least as fast as ``col`` (within ``col.tf_tol``).
+
+    The switch times are optimised (``optimise_switch_times``) on the collocation answer's
+    sequence; the answer is verified like an indirect one where that applies: the boundary
+    errors at the end of the DOP853 propagation, an independent replay of the switch times
+    with the environment's RK4, and the rate limit along the replay. It is not an extremal
+    (no Hamiltonian or switching-law check): ``method="switch-time"``, ``exact`` is False,
+    ``costate0`` and the dense costates come from the KKT multipliers, carried along the arcs
+    (in the scale ``H(0) = -1``; where they give no normal costate, ``costate0`` is
+    collocation's estimate and the dense costates are NaN). Their switching functions show
+    where the optimum leaves the bang-bang law (a singular arc)."""
+    from .solution import STATUS_SUCCESS, SlewSolution
+    from .verify import DEFAULT_TOLS, failure_text, make_check, rate_limit_check, replay_path
+    t0 = time.perf_counter()
+    if (not col.success or problem.cones or problem.qf is None or not math.isinf(problem.torque_norm)
+            or col.switch_times is None or len(col.t) < 2):
+        return None
+    tols = dict(DEFAULT_TOLS, **(tols or {}))
+    bvp = AttitudeBVP(problem)
+    tau = bvp.tau
+    sw = [np.asarray(s, float) / tau for s in col.switch_times]
+    signs0, axes, times = sequence_from_samples(np.asarray(col.t) / tau, col.u, problem.torque_max, sw, col.u_first)
+    r = optimise_switch_times(problem, signs0, axes, times, col.tf / tau, time_budget=time_budget,
+                              max_iter=SLSQP_ITERATIONS, bvp=bvp)
+    if not r.success:
+        return None
+    sw_nd = [_drop_null_pulses(x, r.T) for x in r.switch_times()]
+    y0 = np.zeros(NY)
+    y0[0:4], y0[4:7] = bvp.q0, bvp.w0
+    ax = np.concatenate([np.full(len(x), a, dtype=np.int64) for a, x in enumerate(sw_nd)])
+    yT, _, _ = _forward(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, y0, False)
+    checks = {}
+    att = bvp.attitude_error(yT[0:4])
+    rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
+    checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
+                                                   att <= tols["boundary_attitude_error"])
+    checks["boundary_rate_error"] = make_check(rate_nd / tau, tols["boundary_rate_error"] / tau,
+                                               rate_nd <= tols["boundary_rate_error"])
+    t_nd, x = replay_path(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw_nd, r.signs0, r.T)
+    rep = max(bvp.attitude_error(x[-1, 0:4]), float(np.linalg.norm(x[-1, 4:7] - bvp.wf)))
+    checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
+    checks.update(rate_limit_check(bvp, x, tols))
+    if failure_text(checks):
+        return None
+    tf = r.T * tau
+    col_tol = float(col.tf_tol) if col.tf_tol == col.tf_tol else 0.0
+    if not tf <= col.tf + col_tol:
+        return None
+    switch_times = [s * tau for s in sw_nd]
+    # costates: the KKT multipliers' (scaled to H(0) = -1), else collocation's estimate
+    c = math.nan
+    if np.all(np.isfinite(r.z)):
+        yz, _ = bvp.initial(r.z)
+        H0 = bvp.hamiltonian(yz, r.signs0)
+        if H0 < 0.0:
+            c = -1.0 / H0
+    torque = problem.torque_max.copy()
+    u_first = r.signs0.copy()
+
+    def control(tq):
+        tq = np.asarray(tq, dtype=float)
+        flips = np.stack([np.searchsorted(switch_times[i], tq, side="right") for i in range(3)], axis=-1)
+        return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    t_rec, Y = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z)
+    t = t_rec * tau
+    u = control(t)          # at a switch instant, the sample of the arc after it
+    if c == c:
+        costate = np.hstack([c * tau * Y[:, 7:11], c * tau ** 2 * Y[:, 11:14]])
+        costate0 = costate[0].copy()
+    else:
+        costate = np.full((t.shape[0], 7), np.nan)
+        costate0 = np.array(col.costate0, float)
+    # the optimal time lies between collocation's estimate (less its tolerance) and this
+    # feasible slew's; the replay bounds how exactly this one reaches the target
+    tf_tol = max(tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * max(att, rep)))
+    n = int(ax.shape[0])
+    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
+    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; boundary "
+             f"residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} ± {col_tol:.1g}")
+    message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
+               f"takes {tf:.9g}, against collocation's {col.tf:.9g} ± {col_tol:.1g}.")
+    return SlewSolution(True, STATUS_SUCCESS, message, nit=int(col.nit) + r.nit, nfev=int(col.nfev) + r.nfev,
+                        wall_time=time.perf_counter() - t0, tf=tf, tf_tol=tf_tol,
+                        costate0=costate0, switch_times=switch_times,
+                        u_first=u_first, t=t, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
+                        costate=costate, method="switch-time", route=route,
+                        guess=col.guess, n_candidates=col.n_candidates, candidates_tf=list(col.candidates_tf or []),
+                        baseline_tf=col.baseline_tf, verification=checks, problem=problem, _control=control)
+
+
+STATUS_MESSAGES_SUCCESS_BANG = ("Verified bang-bang slew with optimised switch times (not an extremal: the "
+                                "optimum has a singular arc or was not refined exactly, so tf is an upper "
+                                "bound on the optimal time, within tf_tol of it).")
+
+
+def _drop_null_pulses(times, T):
+    """An axis's sorted switch instants without the zero-width pulses (two consecutive
+    switches at the same instant flip the torque twice: no effect on the control)."""
+    out = []
+    for t in times:
+        if out and t - out[-1] <= 1e-12 * T:
+            out.pop()
+        else:
+            out.append(float(t))
+    return np.asarray(out, float)
+
+
+def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
+    """``(t, Y)``: the bang-bang slew with the switches ``sw_nd`` (per axis) sampled at every
+    DOP853 step (capped at ``T / n_steps``) and on both sides of every switch, the state with
+    the costates of ``z`` (the KKT multipliers') carried along the same arcs (zeros without)."""
+    events = sorted((float(t), a) for a in range(3) for t in sw_nd[a])
+    y = np.zeros(NY)
+    if np.all(np.isfinite(z)):
+        y, _ = bvp.initial(z)
+    else:
+        y[0:4], y[4:7] = bvp.q0, bvp.w0
+    signs = np.array(signs0, float)
+    ts, Ys, t0 = [np.zeros(1)], [y[None, :].copy()], 0.0
+    for t1, a in events + [(T, -1)]:
+        if t1 > t0:
+            out = bvp._run(y, t1 - t0, None, signs0=signs, record=4 * n_steps + 8, detect=False, hmax=T / n_steps)
+            n_rec, rt, rY = out[2], out[6], out[7]
+            ts.append(t0 + rt[1:n_rec])
+            Ys.append(rY[1:n_rec].copy())
+            y = out[0][:NY].copy()
+            t0 = t1
+        if a >= 0:
+            signs[a] = -signs[a]
+    return np.concatenate(ts), np.vstack(Ys)

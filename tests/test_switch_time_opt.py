@@ -1,0 +1,120 @@
+"""Bang-bang switch-time optimisation: exact on a bang-bang optimum, and auto's answer to
+problems with a singular arc (an exactly feasible bang-bang slew instead of collocation's)."""
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from slew_env import Cone, SlewProblem
+from solvers import Guess, solve
+from solvers.attitude_bvp import AttitudeBVP
+from solvers.collocation import solve_collocation
+from solvers.switch_time_opt import bang_bang_answer, optimise_switch_times, sequence_from_samples
+
+EXAMPLES = os.path.join(os.path.dirname(__file__), os.pardir, "examples")
+# held-out full-attitude problem 12 (seed 20261122): J = I, 69.6°; no bang-bang optimum (axis x
+# is interior on 13 % of the collocation samples) and no exact extremal from any guess
+SINGULAR = SlewProblem([1.0, 1.0, 1.0], q0=[0.5348720345231219, -0.6942774536533945, 0.240407551699267,
+                                            -0.41724684914282933],
+                       qf=[0.2551422071041222, -0.9331115211553558, -0.17145031521564322, -0.18657473744757513])
+
+
+def _qmul(a, b):
+    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
+
+
+def _replay(p, switch_times, u_first, tf):
+    """Attitude (rad) and rate misses of the bang-bang control given by switch times alone,
+    integrated here with scipy's DOP853 (independent of the package's integrators)."""
+    J, U = np.asarray(p.inertia, float), np.asarray(p.torque_max, float)
+    events = sorted((float(t), i) for i in range(3) for t in switch_times[i])
+    s, x, t0 = np.array(u_first, float), np.concatenate([p.q0, p.omega0]), 0.0
+    for t1, axis in events + [(tf, -1)]:
+        if t1 > t0:
+            u = U * s
+            x = solve_ivp(lambda t, y: np.concatenate([0.5 * _qmul(y[:4], np.r_[0.0, y[4:]]),
+                                                       (u - np.cross(y[4:], J * y[4:])) / J]),
+                          (t0, t1), x, method="DOP853", rtol=1e-12, atol=1e-13).y[:, -1]
+            t0 = t1
+        if axis >= 0:
+            s[axis] = -s[axis]
+    q = x[:4] / np.linalg.norm(x[:4])
+    d = _qmul(np.r_[p.qf[0], -np.asarray(p.qf[1:])], q)
+    return 2 * math.atan2(np.linalg.norm(d[1:]), abs(d[0])), float(np.linalg.norm(x[4:] - p.omegaf))
+
+
+def test_optimised_switch_times_recover_the_exact_bang_bang_optimum_and_its_costates():
+    # R3, per-axis bound: the exact extremal is a KKT point of its own switching sequence
+    p = SlewProblem.from_dict(json.load(open(os.path.join(EXAMPLES, "r3_seed_report_per_axis.json"))))
+    s = solve(p, warm_start=None)
+    assert s.exact and s.tf == pytest.approx(2.35402, abs=1e-5)
+    bvp = AttitudeBVP(p)
+    axes = np.array([a for a in range(3) for _ in s.switch_times[a]])
+    times = np.concatenate(s.switch_times) / bvp.tau
+    rng = np.random.default_rng(0)
+    r = optimise_switch_times(p, s.u_first, axes, times * (1 + 0.03 * rng.standard_normal(times.size)),
+                              1.02 * s.tf / bvp.tau)
+    assert r.success and r.converged and r.residual < 1e-12
+    assert r.T * bvp.tau == pytest.approx(s.tf, rel=1e-10)
+    for a in range(3):
+        np.testing.assert_allclose(r.switch_times()[a] * bvp.tau, s.switch_times[a], atol=1e-8)
+    # the multipliers are the extremal's costates (same sign, unit norm in the solver's units)
+    z_true, _ = Guess(s.costate0, s.tf).to_nondim(bvp)
+    assert float(r.z @ z_true) == pytest.approx(1.0, abs=1e-8)
+
+
+def test_auto_answers_a_singular_problem_with_an_exactly_feasible_bang_bang_slew():
+    col = solve_collocation(SINGULAR)
+    assert col.success
+    # collocation's zero crossings, flown as a bang-bang control, miss the target by milliradians
+    assert max(_replay(SINGULAR, col.switch_times, col.u_first, col.tf)) > 1e-4
+    s = solve(SINGULAR)
+    assert s.success and s.method == "switch-time" and not s.exact
+    assert "switch-time optimisation" in s.route and "not an extremal" in s.message
+    att, rate = _replay(SINGULAR, s.switch_times, s.u_first, s.tf)
+    assert att < 1e-9 and rate < 1e-9
+    # never slower than collocation's answer (beyond its tolerance), nor than the eigenaxis slew
+    assert s.tf <= col.tf + col.tf_tol and s.tf < s.baseline_tf
+    assert s.tf == pytest.approx(1.79342613, rel=1e-6)
+    assert 0 < s.tf_tol <= col.tf_tol + (s.tf - col.tf)
+    # a bang-bang control, exact from its switch times; the KKT costates carried along the
+    # arcs, in the scale H(0) = -1
+    u = s.control(np.linspace(0.0, s.tf, 101))
+    np.testing.assert_allclose(np.abs(u), 1.0)
+    from solvers.plotting import hamiltonian_along
+    H = hamiltonian_along(s)
+    assert H[0] == pytest.approx(-1.0, abs=1e-9) and np.all(np.isfinite(s.costate))
+    np.testing.assert_allclose(s.costate[0], s.costate0)
+    d = s.to_dict()
+    assert d["method"] == "switch-time" and d["exact"] is False
+    json.dumps(d)
+    assert s.verification["replay"]["passed"] and s.verification["boundary_attitude_error"]["value"] < 1e-9
+
+
+def test_sequence_gets_pulse_pairs_until_the_unknowns_cover_the_boundary_conditions():
+    t = np.linspace(0.0, 2.0, 21)
+    u = np.ones((21, 3))
+    u[8:12, 1] = 0.2          # axis y interior in the middle
+    signs0, axes, times = sequence_from_samples(t, u, np.ones(3), [np.array([0.5]), np.array([1.5]), np.zeros(0)],
+                                                [1, -1, 1])
+    assert axes.size + 1 >= 7 and np.all(np.diff(times) >= 0)
+    assert (axes == 1).sum() >= 3          # the interior axis got the first pulse pair
+    np.testing.assert_array_equal(signs0, [1, -1, 1])
+
+
+def test_switch_time_optimisation_rejects_what_it_does_not_cover():
+    with pytest.raises(ValueError, match="sensor_target"):
+        optimise_switch_times(SlewProblem([1, 1, 1], sensor_target=[0, 1, 0]), [1, 1, 1], [0], [0.5], 2.0)
+    with pytest.raises(ValueError, match="torque_norm"):
+        optimise_switch_times(SlewProblem([1, 1, 1], qf=[0, 1, 0, 0], torque_norm=2), [1, 1, 1], [0], [0.5], 2.0)
+    # no bang-bang answer for cone problems or failed collocation answers: the caller keeps its own
+    col = solve_collocation(SINGULAR)
+    assert bang_bang_answer(SINGULAR.replace(cones=[Cone([0, 0, 1], 0.2)]), col) is None
+    col.success = False
+    assert bang_bang_answer(SINGULAR, col) is None
