@@ -22,6 +22,7 @@ import numpy as np
 from .core import attitude_flow as af
 from .homotopy import continue_path, set_pnorm, set_tanh, structure_candidates
 from .shooting import newton_shoot
+from .solution import bang_bang_control
 from .switch_time import Structure, solve_switch_times
 from .verify import DENSE_STEPS
 
@@ -218,12 +219,7 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem):
     if bvp.mode == af.MODE_BANG:
         sw = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
         u_first = tr.signs0.copy()
-        torque = problem.torque_max.copy()
-
-        def control(tq):
-            tq = np.asarray(tq, dtype=float)
-            flips = np.stack([np.searchsorted(sw[i], tq, side="right") for i in range(3)], axis=-1)
-            return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+        control = bang_bang_control(sw, u_first, problem.torque_max)
     else:
         sw = [np.zeros(0)] * 3
         u_first = np.sign(u[0])

@@ -24,6 +24,20 @@ STATUS_MESSAGES = {
 }
 
 
+def bang_bang_control(switch_times, u_first, torque_max):
+    """``u(t)`` of a bang-bang control: axis ``i`` starts at ``u_first[i]·torque_max[i]`` and flips
+    at each of its ``switch_times[i]`` (from the instant on: a sample at a switch takes the next arc)."""
+    sw = [np.asarray(s, dtype=float).copy() for s in switch_times]
+    u_first = np.asarray(u_first, dtype=float).copy()
+    torque = np.asarray(torque_max, dtype=float).copy()
+
+    def control(tq):
+        tq = np.asarray(tq, dtype=float)
+        flips = np.stack([np.searchsorted(sw[i], tq, side="right") for i in range(3)], axis=-1)
+        return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    return control
+
+
 def is_exact(success, method, verification) -> bool:
     """The rule of ``SlewSolution.exact``, for a solution or its JSON record: verified, from an
     indirect route, and not the penalised extremal of the cone route."""

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attitude_bvp import NY, AttitudeBVP
+from .solution import bang_bang_control
 from .core.attitude_flow import ext_rhs
 
 _E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
@@ -69,11 +70,11 @@ def _forward(bvp, times, axes, signs0, T, y0, want_jac):
     mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
     jumps = []          # f⁻ - f⁺ at each event, in time order
     nfev = 0
-    for k in order:
-        tk = min(max(float(times[k]), 0.0), T)
-        dt = tk - t
-        if dt > 0.0:
-            y, Phi, ok = bvp.arc(y, dt, signs, _E7 if want_jac else None)
+    # the events in time order, then the end of the last arc (axis -1)
+    for k in list(order) + [-1]:
+        tk = T if k < 0 else min(max(float(times[k]), 0.0), T)
+        if tk > t:
+            y, Phi, ok = bvp.arc(y, tk - t, signs, _E7 if want_jac else None)
             nfev += 1
             if not ok:
                 return None
@@ -82,23 +83,14 @@ def _forward(bvp, times, axes, signs0, T, y0, want_jac):
             t = tk
         elif want_jac:
             mats.append(np.eye(7))
+        if k < 0:
+            break
         a = int(axes[k])
         if want_jac:
-            u_before = bvp.umax * signs
             s_after = signs.copy()
             s_after[a] = -s_after[a]
-            jumps.append(ext_rhs(y, u_before, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
+            jumps.append(ext_rhs(y, bvp.umax * signs, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
         signs[a] = -signs[a]
-    dt = T - t
-    if dt > 0.0:
-        y, Phi, ok = bvp.arc(y, dt, signs, _E7 if want_jac else None)
-        nfev += 1
-        if not ok:
-            return None
-        if want_jac:
-            mats.append(Phi[:7, :7].copy())
-    elif want_jac:
-        mats.append(np.eye(7))
     r, D, _ = bvp.terminal(y, T)
     if not want_jac:
         return y, r, nfev
@@ -315,13 +307,8 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
         H0 = bvp.hamiltonian(yz, r.signs0)
         if H0 < 0.0:
             c = -1.0 / H0
-    torque = problem.torque_max.copy()
     u_first = r.signs0.copy()
-
-    def control(tq):
-        tq = np.asarray(tq, dtype=float)
-        flips = np.stack([np.searchsorted(switch_times[i], tq, side="right") for i in range(3)], axis=-1)
-        return torque * u_first * np.where(flips % 2 == 0, 1.0, -1.0)
+    control = bang_bang_control(switch_times, u_first, problem.torque_max)
     t_rec, Y = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z)
     t = t_rec * tau
     u = control(t)          # at a switch instant, the sample of the arc after it
