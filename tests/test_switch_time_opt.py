@@ -81,7 +81,7 @@ def test_auto_answers_a_singular_problem_with_an_exactly_feasible_bang_bang_slew
     assert att < 1e-9 and rate < 1e-9
     # never slower than collocation's answer (beyond its tolerance), nor than the eigenaxis slew
     assert s.tf <= col.tf + col.tf_tol and s.tf < s.baseline_tf
-    assert s.tf == pytest.approx(1.79342613, rel=1e-6)
+    assert s.tf == pytest.approx(1.79338877, rel=1e-6) and s.tf < col.tf - 1e-4
     assert 0 < s.tf_tol <= col.tf_tol + (s.tf - col.tf)
     # a bang-bang control, exact from its switch times; the KKT costates carried along the
     # arcs, in the scale H(0) = -1
