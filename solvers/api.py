@@ -756,7 +756,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     if found and min(f[0] for f in found) > baseline * (1 + 1e-7):
         best_T = min(f[0] for f in found)
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
-        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob, a.structure)
         cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
         return SlewSolution(False, STATUS_WORSE_THAN_BASELINE,
                             f"{STATUS_MESSAGES[STATUS_WORSE_THAN_BASELINE]} Best extremal {T * bvp.tau:.9g} vs "
@@ -767,7 +767,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         best_T = min(f[0] for f in found)
         # among extremals with the same final time, report the first one found
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))
-        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob, a.structure)
         cands = sorted({round(f[0] * bvp.tau, 9) for f in found})
         msg = STATUS_MESSAGES[STATUS_SUCCESS]
         if len(cands) > 1:
@@ -776,7 +776,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
                             candidates_tf=cands, **common, **fields)
     if last_verif_fail is not None:
         a, tr, checks, text, src = last_verif_fail
-        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob)
+        fields = solution_fields(bvp, a.z, a.T, a.route, tr, checks, src, prob, a.structure)
         return SlewSolution(False, STATUS_VERIFICATION_FAILED,
                             f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}", wall_time=wall,
                             **common, **fields)

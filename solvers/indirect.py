@@ -202,7 +202,7 @@ def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9):
     return Attempt(False, r.p, r.T, None, nit, nfev, "shooting", r.message, r.residual_norm, r.history)
 
 
-def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem):
+def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem, structure=None):
     """``SlewSolution`` fields, in the problem's units, of the extremal ``(z, T)`` recorded as
     ``tr`` (a ``Trajectory``): costates rescaled to ``H ≡ -1``, switch times, the dense samples,
     the control and ``tf_tol`` from the boundary and replay errors in ``checks``."""
@@ -217,7 +217,12 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem):
     u = u_nd * umax0
     costate = np.hstack([c * tau * tr.y[:, 7:11], c * tau ** 2 * tr.y[:, 11:14]])
     if bvp.mode == af.MODE_BANG:
-        sw = [tr.switch_t[tr.switch_axis == i] * tau for i in range(3)]
+        # the solved switch instants when there are (the answer the boundary was checked on),
+        # else the event-located ones
+        same = (structure is not None and structure.n == tr.switch_axis.shape[0]
+                and np.array_equal(structure.axes, tr.switch_axis))
+        src_t, src_a = (structure.times, structure.axes) if same else (tr.switch_t, tr.switch_axis)
+        sw = [np.sort(src_t[src_a == i]) * tau for i in range(3)]
         u_first = tr.signs0.copy()
         control = bang_bang_control(sw, u_first, problem.torque_max)
     else:
