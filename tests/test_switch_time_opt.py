@@ -111,6 +111,14 @@ def test_sequence_gets_pulse_pairs_until_the_unknowns_cover_the_boundary_conditi
 def test_switch_time_optimisation_rejects_what_it_does_not_cover():
     with pytest.raises(ValueError, match="sensor_target"):
         optimise_switch_times(SlewProblem([1, 1, 1], sensor_target=[0, 1, 0]), [1, 1, 1], [0], [0.5], 2.0)
+    with pytest.raises(ValueError, match="axes"):
+        optimise_switch_times(SINGULAR, [1, 1, 1], [3], [0.5], 2.0)
+    with pytest.raises(ValueError, match="one axis per switch"):
+        optimise_switch_times(SINGULAR, [1, 1, 1], [0, 1], [0.5], 2.0)
+    with pytest.raises(ValueError, match="signs0"):
+        optimise_switch_times(SINGULAR, [1, 0, 1], [0], [0.5], 2.0)
+    with pytest.raises(ValueError, match="positive final time"):
+        optimise_switch_times(SINGULAR, [1, 1, 1], [0], [0.5], -1.0)
     with pytest.raises(ValueError, match="torque_norm"):
         optimise_switch_times(SlewProblem([1, 1, 1], qf=[0, 1, 0, 0], torque_norm=2), [1, 1, 1], [0], [0.5], 2.0)
     # no bang-bang answer for cone problems or failed collocation answers: the caller keeps its own
