@@ -97,7 +97,7 @@ def main(argv=None):
     for s in ok:
         by_method[s.method] = by_method.get(s.method, 0) + 1
     print(f"  verified answers by method   {dict(sorted(by_method.items()))}"
-          "   (indirect: exact bang-bang extremal; collocation: approximate, own tolerances)")
+          "   (indirect: exact bang-bang extremal; collocation: approximate, own tolerances; switch-time: bang-bang, optimised switch times, not an extremal)")
     print(f"  wall time, all   median {1e3 * np.median(wall):9.1f} ms   p95 {1e3 * np.percentile(wall, 95):9.1f} ms")
     print(f"  wall time, conv. median {1e3 * np.median(wall_ok):9.1f} ms   p95 {1e3 * np.percentile(wall_ok, 95):9.1f} ms")
     print(f"  Newton iterations (conv.)    median {np.median(nit):.0f}   p95 {np.percentile(nit, 95):.0f}")
