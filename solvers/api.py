@@ -107,6 +107,8 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
     count = 0
     if guess is not None:
         for g in guess.iter_all():
+            if count >= max_candidates:
+                break       # (deferred candidates past the limit are never computed)
             z, T = g.to_nondim(bvp)
             st = _structure_from_guess(g, bvp)
             if count < max_candidates and fresh(z, st):
@@ -752,7 +754,8 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     wall = time.perf_counter() - t_start
     common = dict(nit=nit, nfev=nfev, method=method_used, n_candidates=tried, problem=prob,
                   baseline_tf=baseline * bvp.tau)
-    # the baseline is computed on a grid (conservative, i.e. never too fast): 1e-7 slack
+    # the baseline comes from a grid (conservative: never too fast) or, without a gyroscopic
+    # term, its closed form: 1e-7 slack
     if found and min(f[0] for f in found) > baseline * (1 + 1e-7):
         best_T = min(f[0] for f in found)
         T, a, tr, checks, src = next(f for f in found if f[0] <= best_T * (1.0 + 1e-9))

@@ -82,26 +82,29 @@ class Guess:
 
     def iter_all(self):
         """This guess followed by its candidates, a deferred candidate (a function of no
-        arguments returning a ``Guess`` or ``None``) computed only when it is reached, once:
-        a solver that converges on the first guess never pays for the later ones."""
+        arguments returning a ``Guess`` or ``None``) computed only when it is reached: a solver
+        that converges on the first guess never pays for the later ones. Its result is kept on
+        this guess (``None``: skipped); ``candidates`` itself is not changed, so a guess shared
+        between calls or threads stays intact (a deferred function may then run more than
+        once: it must not have side effects that matter). A guess holding functions cannot be
+        pickled (sent to a process pool); ``all()`` gives the plain list."""
         yield self
-        k = 0
-        while k < len(self.candidates):
-            c = self.candidates[k]
+        memo = self.__dict__.setdefault("_deferred", {})
+        for k, c in enumerate(list(self.candidates)):
             if not isinstance(c, Guess):
                 if not callable(c):
                     raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
                                      f"got {type(c).__name__}")
-                c = c()
-                if c is not None and not isinstance(c, Guess):
-                    raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
-                                     f"{type(c).__name__}, expected a Guess or None")
+                if k not in memo:
+                    made = c()
+                    if made is not None and not isinstance(made, Guess):
+                        raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
+                                         f"{type(made).__name__}, expected a Guess or None")
+                    memo[k] = made
+                c = memo[k]
                 if c is None:           # nothing to add (e.g. the same as an earlier candidate)
-                    del self.candidates[k]
                     continue
-                self.candidates[k] = c
             yield c
-            k += 1
 
     # --- conversion to / from the solver's nondimensional unknowns
     def to_nondim(self, bvp, with_norm=False):

@@ -220,7 +220,8 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem, structure=
         # the solved switch instants when there are (the answer the boundary was checked on),
         # else the event-located ones
         same = (structure is not None and structure.n == tr.switch_axis.shape[0]
-                and np.array_equal(structure.axes, tr.switch_axis))
+                and np.array_equal(structure.axes, tr.switch_axis)
+                and np.array_equal(structure.signs0, tr.signs0))
         src_t, src_a = (structure.times, structure.axes) if same else (tr.switch_t, tr.switch_axis)
         sw = [np.sort(src_t[src_a == i]) * tau for i in range(3)]
         u_first = tr.signs0.copy()

@@ -33,7 +33,7 @@ import numpy as np
 
 from .attitude_bvp import NY, AttitudeBVP
 from .solution import bang_bang_control
-from .core.attitude_flow import ext_rhs
+from .core.attitude_flow import FLOW_OK, ext_rhs
 
 _E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
 
@@ -69,9 +69,12 @@ def _forward(bvp, times, axes, signs0, T, y0, want_jac):
     mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
     jumps = []          # f⁻ - f⁺ at each event, in time order
     nfev = 0
-    # the events in time order, then the end of the last arc (axis -1)
+    # the events in time order, then the end of the last arc (axis -1). An instant at or after T
+    # is beyond the horizon (no flip); one before 0 flips at 0. Either way it does not move the
+    # end state to first order: its column of the Jacobian is zero.
     for k in list(order) + [-1]:
-        tk = T if k < 0 else min(max(float(times[k]), 0.0), T)
+        raw = T if k < 0 else float(times[k])
+        tk = min(max(raw, 0.0), T)
         if tk > t:
             y, Phi, ok = bvp.arc(y, tk - t, signs, _E7 if want_jac else None)
             nfev += 1
@@ -85,10 +88,15 @@ def _forward(bvp, times, axes, signs0, T, y0, want_jac):
         if k < 0:
             break
         a = int(axes[k])
+        if raw >= T:
+            if want_jac:
+                jumps.append(np.zeros(7))
+            continue
         if want_jac:
             s_after = signs.copy()
             s_after[a] = -s_after[a]
-            jumps.append(ext_rhs(y, bvp.umax * signs, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
+            jumps.append(np.zeros(7) if raw <= 0.0 else
+                         ext_rhs(y, bvp.umax * signs, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
         signs[a] = -signs[a]
     r, D, _ = bvp.terminal(y, T)
     if not want_jac:
@@ -107,15 +115,19 @@ def _forward(bvp, times, axes, signs0, T, y0, want_jac):
 
 def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=300,
                           bvp=None) -> SwitchTimeOptResult:
-    """The fastest bang-bang slew of ``problem`` (per-axis bound, full-attitude target) with the
-    switching sequence ``(signs0, axes)``, from the nondimensional instants ``times`` and final
-    time ``T`` (module docstring)."""
+    """The fastest bang-bang slew of ``problem`` (per-axis bound, full-attitude target, no cones)
+    with the switching sequence ``(signs0, axes)``, from the nondimensional instants ``times``
+    and final time ``T`` (module docstring). A rate limit is not a constraint here: the caller
+    checks it on the answer (``bang_bang_answer`` does, on its replay)."""
     from scipy.optimize import minimize
     bvp = bvp if bvp is not None else AttitudeBVP(problem)
     if bvp.pointing:
         raise ValueError("sensor_target: switch-time optimisation needs a full-attitude target (qf)")
     if not math.isinf(bvp.problem.torque_norm):
         raise ValueError("torque_norm: switch-time optimisation is for the per-axis bound")
+    if bvp.problem.cones:
+        raise ValueError(f"cones: switch-time optimisation does not impose keep-out cones "
+                         f"({len(bvp.problem.cones)} given)")
     axes = np.asarray(axes).ravel()
     times = np.asarray(times, dtype=float).ravel()
     signs0 = np.asarray(signs0, dtype=float).ravel()
@@ -209,8 +221,13 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
         fail = "switch instants outside [0, tf]"
     # KKT: e_T = J_rᵀ ν + (active inequalities); with the inequalities inactive (no zero-length
     # arc), ν by least squares and its residual measures stationarity
-    nu, *_ = np.linalg.lstsq(Jr.T, e_T, rcond=None)
-    kkt = float(np.linalg.norm(Jr.T @ nu - e_T))
+    # the active inequalities (zero-width pulses, instants at 0 or T) take part: their
+    # multipliers absorb what the boundary conditions' cannot
+    act = A[np.abs(A @ v) <= 1e-10 * max(1.0, float(v[n]))] if A.shape[0] else np.zeros((0, n + 1))
+    K = np.hstack([Jr.T, act.T])
+    mult, *_ = np.linalg.lstsq(K, e_T, rcond=None)
+    nu = mult[:Jr.shape[0]]
+    kkt = float(np.linalg.norm(K @ mult - e_T))
     # the state's costate at tf, λ(tf) = -νᵀ ∂r/∂x (the sign of the solver's convention: on R3
     # the exact extremal's costates come back to rounding), carried back to t = 0
     lam_T = -(D7.T @ nu)
@@ -321,7 +338,10 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     y0 = np.zeros(NY)
     y0[0:4], y0[4:7] = bvp.q0, bvp.w0
     ax = np.concatenate([np.full(len(x), a, dtype=np.int64) for a, x in enumerate(sw_nd)])
-    yT, _, _ = _forward(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, y0, False)
+    end = _forward(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, y0, False)
+    if end is None:
+        return None
+    yT = end[0]
     checks = {}
     att = bvp.attitude_error(yT[0:4])
     rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
@@ -340,16 +360,20 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     if not tf <= col.tf + col_tol:
         return None
     switch_times = [s * tau for s in sw_nd]
-    # costates: the KKT multipliers' (scaled to H(0) = -1), else collocation's estimate
+    # costates: the KKT multipliers' (scaled to H(0) = -1) when SLSQP's iterate is stationary
+    # (their residual below KKT_TOL), else collocation's estimate and no dense costates
     c = math.nan
-    if np.all(np.isfinite(r.z)):
+    if np.all(np.isfinite(r.z)) and r.kkt <= KKT_TOL:
         yz, _ = bvp.initial(r.z)
         H0 = bvp.hamiltonian(yz, r.signs0)
         if H0 < 0.0:
             c = -1.0 / H0
     u_first = r.signs0.copy()
     control = bang_bang_control(switch_times, u_first, problem.torque_max)
-    t_rec, Y = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z)
+    rec = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z if c == c else np.full(6, np.nan))
+    if rec is None:
+        return None
+    t_rec, Y = rec
     t = t_rec * tau
     u = control(t)          # at a switch instant, the sample of the arc after it
     if c == c:
@@ -358,13 +382,14 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     else:
         costate = np.full((t.shape[0], 7), np.nan)
         costate0 = np.array(col.costate0, float)
-    # the optimal time lies between collocation's estimate (less its tolerance) and this
-    # feasible slew's; the replay bounds how exactly this one reaches the target
+    # the optimal time is at most this feasible slew's, and collocation estimates it to its
+    # tf_tol (an estimate, not a bound); the replay bounds how exactly this one reaches the target
     tf_tol = max(tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * max(att, rep)))
     n = int(ax.shape[0])
     how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
-    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; boundary "
-             f"residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} ± {col_tol:.1g}")
+    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; KKT residual "
+             f"{r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} "
+             f"± {col_tol:.1g}")
     message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
                f"takes {tf:.9g}, against collocation's {col.tf:.9g} ± {col_tol:.1g}.")
     return SlewSolution(True, STATUS_SUCCESS, message, nit=int(col.nit) + r.nit, nfev=int(col.nfev) + r.nfev,
@@ -378,7 +403,9 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
 
 STATUS_MESSAGES_SUCCESS_BANG = ("Verified bang-bang slew with optimised switch times (not an extremal: the "
                                 "optimum has a singular arc or was not refined exactly, so tf is an upper "
-                                "bound on the optimal time, within tf_tol of it).")
+                                "bound on the optimal time, which tf_tol estimates).")
+# KKT residual below which the multipliers are reported as costates
+KKT_TOL = 1e-6
 
 
 def _drop_null_pulses(times, T):
@@ -394,9 +421,10 @@ def _drop_null_pulses(times, T):
 
 
 def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
-    """``(t, Y)``: the bang-bang slew with the switches ``sw_nd`` (per axis) sampled at every
-    DOP853 step (capped at ``T / n_steps``) and on both sides of every switch, the state with
-    the costates of ``z`` (the KKT multipliers') carried along the same arcs (zeros without)."""
+    """``(t, Y)``, or ``None`` if a propagation fails: the bang-bang slew with the switches
+    ``sw_nd`` (per axis) sampled at every DOP853 step (capped at ``T / n_steps``, the default
+    dense density of the indirect answers) and once at every switch, the state with the
+    costates of ``z`` (the KKT multipliers') carried along the same arcs (zeros without)."""
     events = sorted((float(t), a) for a in range(3) for t in sw_nd[a])
     y = np.zeros(NY)
     if np.all(np.isfinite(z)):
@@ -407,8 +435,11 @@ def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
     ts, Ys, t0 = [np.zeros(1)], [y[None, :].copy()], 0.0
     for t1, a in events + [(T, -1)]:
         if t1 > t0:
-            out = bvp._run(y, t1 - t0, None, signs0=signs, record=4 * n_steps + 8, detect=False, hmax=T / n_steps)
-            n_rec, rt, rY = out[2], out[6], out[7]
+            cap = 4 * n_steps + 8
+            out = bvp._run(y, t1 - t0, None, signs0=signs, record=cap, detect=False, hmax=T / n_steps)
+            n_rec, status, rt, rY = out[2], out[5], out[6], out[7]
+            if status != FLOW_OK or n_rec < 2 or n_rec >= cap:     # failed, or samples dropped
+                return None
             ts.append(t0 + rt[1:n_rec])
             Ys.append(rY[1:n_rec].copy())
             y = out[0][:NY].copy()
