@@ -494,11 +494,10 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
             from .switch_time_opt import bang_bang_answer
             bang = bang_bang_answer(prob, col, time_budget=min(BANG_BANG_BUDGET, budget - spent()),
                                     tols=options.get("tols"))
-        if bang is not None and budget - spent() > 0.05:
+        if bang is not None and bang.kkt_guess is not None and budget - spent() > 0.05:
             # the optimised sequence's KKT costates and switch instants: if the optimum is
             # bang-bang after all, they are its extremal's, and the exact solver certifies it
-            g = Guess(bang.costate0, bang.tf, bang.switch_times, bang.u_first, source="switch-time optimisation")
-            ex = _solve_indirect(prob, "indirect", g, first_verified=True, **dict(
+            ex = _solve_indirect(prob, "indirect", bang.kkt_guess, first_verified=True, **dict(
                 options, max_candidates=1, min_candidates=1, enough=1,
                 time_budget=min(BANG_BANG_BUDGET, budget - spent())))
             if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):

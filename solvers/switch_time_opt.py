@@ -362,12 +362,13 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     switch_times = [s * tau for s in sw_nd]
     # costates: the KKT multipliers' (scaled to H(0) = -1) when SLSQP's iterate is stationary
     # (their residual below KKT_TOL), else collocation's estimate and no dense costates
-    c = math.nan
-    if np.all(np.isfinite(r.z)) and r.kkt <= KKT_TOL:
+    c = c_guess = math.nan
+    if np.all(np.isfinite(r.z)):
         yz, _ = bvp.initial(r.z)
         H0 = bvp.hamiltonian(yz, r.signs0)
         if H0 < 0.0:
-            c = -1.0 / H0
+            c_guess = -1.0 / H0
+            c = c_guess if r.kkt <= KKT_TOL else math.nan
     u_first = r.signs0.copy()
     control = bang_bang_control(switch_times, u_first, problem.torque_max)
     rec = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z if c == c else np.full(6, np.nan))
@@ -392,13 +393,22 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
              f"± {col_tol:.1g}")
     message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
                f"takes {tf:.9g}, against collocation's {col.tf:.9g} ± {col_tol:.1g}.")
-    return SlewSolution(True, STATUS_SUCCESS, message, nit=int(col.nit) + r.nit, nfev=int(col.nfev) + r.nfev,
+    answer = SlewSolution(True, STATUS_SUCCESS, message, nit=int(col.nit) + r.nit, nfev=int(col.nfev) + r.nfev,
                         wall_time=time.perf_counter() - t0, tf=tf, tf_tol=tf_tol,
                         costate0=costate0, switch_times=switch_times,
                         u_first=u_first, t=t, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
                         costate=costate, method="switch-time", route=route,
                         guess=col.guess, n_candidates=col.n_candidates, candidates_tf=list(col.candidates_tf or []),
                         baseline_tf=col.baseline_tf, verification=checks, problem=problem, _control=control)
+    # the KKT costates as a guess for the exact solver even when they are not reported (a
+    # non-stationary iterate's multipliers can still lead to the extremal)
+    answer.kkt_guess = None
+    if c_guess == c_guess:
+        yz, _ = bvp.initial(r.z)
+        from .guesses import Guess
+        answer.kkt_guess = Guess(np.concatenate([c_guess * tau * yz[7:11], c_guess * tau ** 2 * yz[11:14]]), tf,
+                                 switch_times, u_first, source="switch-time optimisation")
+    return answer
 
 
 STATUS_MESSAGES_SUCCESS_BANG = ("Verified bang-bang slew with optimised switch times (not an extremal: the "
@@ -434,7 +444,8 @@ def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
     signs = np.array(signs0, float)
     ts, Ys, t0 = [np.zeros(1)], [y[None, :].copy()], 0.0
     for t1, a in events + [(T, -1)]:
-        if t1 > t0:
+        # (two axes switching at one instant leave an arc of rounding length: nothing to sample)
+        if t1 - t0 > 1e-12 * T:
             cap = 4 * n_steps + 8
             out = bvp._run(y, t1 - t0, None, signs0=signs, record=cap, detect=False, hmax=T / n_steps)
             n_rec, status, rt, rY = out[2], out[5], out[6], out[7]
@@ -443,7 +454,7 @@ def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
             ts.append(t0 + rt[1:n_rec])
             Ys.append(rY[1:n_rec].copy())
             y = out[0][:NY].copy()
-            t0 = t1
+        t0 = max(t0, t1)
         if a >= 0:
             signs[a] = -signs[a]
     return np.concatenate(ts), np.vstack(Ys)

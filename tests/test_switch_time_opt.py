@@ -197,3 +197,18 @@ def test_switch_check_keeps_the_plain_tolerance_before_a_slow_crossing():
     moved = times.copy()
     moved[0] += 1e-8 * T
     assert switch_deviation(bvp, tr, Structure(st.signs0, axes, moved), T) > 1e-9
+
+
+def test_dense_record_takes_simultaneous_switches_of_two_axes():
+    # two axes switching at one instant, 1e-16 apart by rounding, leave an arc of no length
+    from solvers.switch_time_opt import _dense_record
+    bvp = AttitudeBVP(SINGULAR)
+    bvp.set_mode("bang")
+    t_mid = 0.9
+    rec = _dense_record(bvp, [np.array([0.4]), np.array([t_mid]), np.array([t_mid + 1e-16])],
+                        np.array([1.0, 1.0, 1.0]), 1.8, np.full(6, np.nan))
+    assert rec is not None
+    t, Y = rec
+    assert t[0] == 0.0 and t[-1] == pytest.approx(1.8) and np.all(np.diff(t) >= 0)
+    # rest to rest under u = +1 then -1 on y, z: ω_y back to 0 at 1.8
+    assert Y[-1, 5] == pytest.approx(0.0, abs=1e-12)
