@@ -69,8 +69,8 @@ CONE_WARM_BUDGET = 0.2
 CONE_CANDIDATE_CAP = 0.06
 REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation when the learned guess failed
 # s: auto's bang-bang switch-time optimisation when no exact extremal refines a collocation
-# answer (15-90 ms on held-out singular problems)
-BANG_BANG_BUDGET = 0.5
+# answer (three rounds of 15-250 ms each on held-out singular problems)
+BANG_BANG_BUDGET = 1.0
 
 
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:

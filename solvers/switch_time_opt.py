@@ -186,8 +186,11 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
         cons.append({"type": "ineq", "fun": lambda v: A @ v, "jac": lambda v: A})
     fail = None
     try:
+        # tf within a factor 2 of the start's: SLSQP's iterates can otherwise run tf towards 0
+        # with every switch clipped past it (seen on a J = I slew over 168°)
         res = minimize(lambda v: v[n], v0, jac=lambda v: e_T, constraints=cons, method="SLSQP",
-                       bounds=[(0.0, None)] * (n + 1), options={"maxiter": max_iter, "ftol": 1e-13})
+                       bounds=[(0.0, 2.0 * T)] * n + [(0.5 * T, 2.0 * T)],
+                       options={"maxiter": max_iter, "ftol": 1e-13})
         v = res.x
         stats["nit"] = int(res.nit)
         # at the iteration limit the iterate is kept: the polish below makes it feasible, and a
@@ -205,9 +208,13 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     try:
         for _ in range(8):
             _, r, Jr, *_ = evaluate(v)
-            if np.linalg.norm(r) < 1e-14:
+            rn = float(np.linalg.norm(r))
+            if rn < 1e-14:
                 break
-            v = v - np.linalg.lstsq(Jr, r, rcond=None)[0]
+            vt = v - np.linalg.lstsq(Jr, r, rcond=None)[0]
+            if not float(np.linalg.norm(evaluate(vt)[1])) < rn:
+                break           # not converging: SLSQP ended far from feasible; fail below
+            v = vt
         y, r, Jr, D7, M, _ = evaluate(v)
     except (TimeoutError, FloatingPointError) as e:
         return SwitchTimeOptResult(False, f"polish: {type(e).__name__} {e}", float(v[n]), v[:n].copy(), axes, signs0,
@@ -216,13 +223,17 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     if fail is None and not (resid < 1e-10):
         fail = f"boundary residual {resid:.2e} after the polish"
     # (an axis's control depends only on the set of its flip instants: switches that the polish
-    # left out of order by rounding describe the same control, and the forward pass sorts them)
-    if fail is None and (np.any(v < -1e-9 * max(1.0, float(v[n]))) or np.any(v[:n] > v[n] * (1 + 1e-9))):
-        fail = "switch instants outside [0, tf]"
-    # KKT: e_T = J_rᵀ ν + (active inequalities); with the inequalities inactive (no zero-length
-    # arc), ν by least squares and its residual measures stationarity
-    # the active inequalities (zero-width pulses, instants at 0 or T) take part: their
-    # multipliers absorb what the boundary conditions' cannot
+    # left out of order by rounding describe the same control, and the forward pass sorts them.
+    # One at or past tf is no switch; one at or before 0 flips the first arc's sign: the
+    # sequence is rewritten so, which is the control that was evaluated)
+    keep = v[:n] < v[n]
+    early = v[:n] <= 0.0
+    signs0 = signs0.copy()
+    for a in axes[keep & early]:
+        signs0[int(a)] = -signs0[int(a)]
+    keep &= ~early
+    # KKT: e_T = J_rᵀ ν + A_actᵀ μ, by least squares, with the active inequalities (zero-width
+    # pulses, instants at 0 or T); its residual measures stationarity
     act = A[np.abs(A @ v) <= 1e-10 * max(1.0, float(v[n]))] if A.shape[0] else np.zeros((0, n + 1))
     K = np.hstack([Jr.T, act.T])
     mult, *_ = np.linalg.lstsq(K, e_T, rcond=None)
@@ -237,8 +248,8 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     nz = float(np.linalg.norm(z))
     z = z / nz if nz > 0 else np.full(6, np.nan)
     ok = fail is None
-    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), v[:n].copy(), axes, signs0, resid,
-                               stats["nit"], stats["nfev"], z, kkt, converged)
+    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), v[:n][keep].copy(), axes[keep].copy(), signs0,
+                               resid, stats["nit"], stats["nfev"], z, kkt, converged)
 
 
 def _quat_left_conj(q0, lq):
