@@ -712,9 +712,10 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         if tried > 0 and time.perf_counter() > deadline:
             break
         tried += 1
-        # structure templates and model guesses (learned, nearest-neighbour) carry a full
-        # switching structure: straight to the switch-time Newton, no smoothing path
-        if per_axis and st is not None and src.startswith(("template", "learned", "nearest")):
+        # structure templates, model guesses (learned, nearest-neighbour) and the KKT costates of
+        # a switch-time optimisation carry a full switching structure: straight to the
+        # switch-time Newton, no smoothing path
+        if per_axis and st is not None and src.startswith(("template", "learned", "nearest", "switch-time")):
             a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}")
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
