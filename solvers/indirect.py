@@ -55,8 +55,7 @@ def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=DENSE_STEPS):
     ev = Structure(tr.signs0, tr.switch_axis.astype(np.int64), tr.switch_t)
     if structure is None:
         return False, ev, tr
-    same = (np.array_equal(ev.signs0, structure.signs0) and ev.n == structure.n
-            and np.array_equal(ev.axes, structure.axes)
+    same = (structure.same_sequence(ev.signs0, ev.axes)
             and np.allclose(ev.times, structure.times, atol=tol * max(1.0, T), rtol=0))
     return same, ev, tr
 
@@ -219,9 +218,7 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem, structure=
     if bvp.mode == af.MODE_BANG:
         # the solved switch instants when there are (the answer the boundary was checked on),
         # else the event-located ones
-        same = (structure is not None and structure.n == tr.switch_axis.shape[0]
-                and np.array_equal(structure.axes, tr.switch_axis)
-                and np.array_equal(structure.signs0, tr.signs0))
+        same = structure is not None and structure.same_sequence(tr.signs0, tr.switch_axis)
         src_t, src_a = (structure.times, structure.axes) if same else (tr.switch_t, tr.switch_axis)
         sw = [np.sort(src_t[src_a == i]) * tau for i in range(3)]
         u_first = tr.signs0.copy()

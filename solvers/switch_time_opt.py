@@ -33,10 +33,8 @@ import numpy as np
 
 from .attitude_bvp import NY, AttitudeBVP
 from .solution import bang_bang_control
-from .core.attitude_flow import FLOW_OK, ext_rhs
-
-_E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
-
+from .switch_time import propagate_sequence
+from .core.attitude_flow import FLOW_OK
 
 @dataclass
 class SwitchTimeOptResult:
@@ -56,61 +54,6 @@ class SwitchTimeOptResult:
     def switch_times(self):
         """Per-axis sorted switch instants (nondimensional)."""
         return [np.sort(self.times[self.axes == i]) for i in range(3)]
-
-
-def _forward(bvp, times, axes, signs0, T, y0, want_jac):
-    """End state and, with ``want_jac``, ``(r, J_r, M_total, G)``: residual (6), its Jacobian in
-    ``[times, T]``, the state transition matrix over ``[0, T]`` (7×7)."""
-    n = times.shape[0]
-    order = np.argsort(times, kind="stable")
-    signs = np.array(signs0, float)
-    y = y0.copy()
-    t = 0.0
-    mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
-    jumps = []          # f⁻ - f⁺ at each event, in time order
-    nfev = 0
-    # the events in time order, then the end of the last arc (axis -1). An instant at or after T
-    # is beyond the horizon (no flip); one before 0 flips at 0. Either way it does not move the
-    # end state to first order: its column of the Jacobian is zero.
-    for k in list(order) + [-1]:
-        raw = T if k < 0 else float(times[k])
-        tk = min(max(raw, 0.0), T)
-        if tk > t:
-            y, Phi, ok = bvp.arc(y, tk - t, signs, _E7 if want_jac else None)
-            nfev += 1
-            if not ok:
-                return None
-            if want_jac:
-                mats.append(Phi[:7, :7].copy())
-            t = tk
-        elif want_jac:
-            mats.append(np.eye(7))
-        if k < 0:
-            break
-        a = int(axes[k])
-        if raw >= T:
-            if want_jac:
-                jumps.append(np.zeros(7))
-            continue
-        if want_jac:
-            s_after = signs.copy()
-            s_after[a] = -s_after[a]
-            jumps.append(np.zeros(7) if raw <= 0.0 else
-                         ext_rhs(y, bvp.umax * signs, bvp.J)[:7] - ext_rhs(y, bvp.umax * s_after, bvp.J)[:7])
-        signs[a] = -signs[a]
-    r, D, _ = bvp.terminal(y, T)
-    if not want_jac:
-        return y, r, nfev
-    D7 = D[:, :7]
-    dx = np.empty((7, n + 1))
-    G = np.eye(7)
-    # Φ(T, t_k) = M_last … M_{k+1}: accumulated backwards
-    for j in range(n - 1, -1, -1):
-        G = G @ mats[j + 1]
-        dx[:, order[j]] = G @ jumps[j]
-    dx[:, n] = ext_rhs(y, bvp.umax * signs, bvp.J)[:7]
-    M_total = G @ mats[0]
-    return y, r, D7 @ dx, D7, M_total, nfev
 
 
 def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=300,
@@ -142,9 +85,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     bvp.set_mode("bang")
     axes = axes.astype(np.int64)
     n = axes.shape[0]
-    y0 = np.zeros(NY)
-    y0[0:4] = bvp.q0
-    y0[4:7] = bvp.w0
+    y0 = _start_state(bvp)
     t_start = time.perf_counter()
     stats = {"nfev": 0, "nit": 0}
     cache = {}
@@ -154,7 +95,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
         if key not in cache:
             if time.perf_counter() - t_start > time_budget:
                 raise TimeoutError
-            out = _forward(bvp, v[:n], axes, signs0, float(v[n]), y0, True)
+            out = propagate_sequence(bvp, v[:n], axes, signs0, float(v[n]), y0, True)
             if out is None:
                 raise FloatingPointError("propagation failed")
             stats["nfev"] += out[-1]
@@ -252,6 +193,13 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
                                resid, stats["nit"], stats["nfev"], z, kkt, converged)
 
 
+def _start_state(bvp):
+    """The augmented start state with zero costates (the state's flow does not use them)."""
+    y0 = np.zeros(NY)
+    y0[0:4], y0[4:7] = bvp.q0, bvp.w0
+    return y0
+
+
 def _quat_left_conj(q0, lq):
     """``Im(q0* ⊗ λq)``: the costate of the attitude in the solver's parameters ``μ``."""
     from slew_env.core.quaternion import qconj, qmul
@@ -317,7 +265,8 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     collocation's estimate and the dense costates are NaN). Their switching functions show
     where the optimum leaves the bang-bang law (a singular arc)."""
     from .solution import STATUS_SUCCESS, SlewSolution
-    from .verify import DEFAULT_TOLS, failure_text, make_check, rate_limit_check, replay_path
+    from .verify import (DEFAULT_TOLS, boundary_checks, end_error, failure_text, make_check, rate_limit_check,
+                         replay_path)
     t0 = time.perf_counter()
     if (not col.success or problem.cones or problem.qf is None or not math.isinf(problem.torque_norm)
             or col.switch_times is None or len(col.t) < 2):
@@ -346,22 +295,14 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     if r is None:
         return None
     sw_nd = [_drop_null_pulses(x, r.T) for x in r.switch_times()]
-    y0 = np.zeros(NY)
-    y0[0:4], y0[4:7] = bvp.q0, bvp.w0
     ax = np.concatenate([np.full(len(x), a, dtype=np.int64) for a, x in enumerate(sw_nd)])
-    end = _forward(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, y0, False)
+    end = propagate_sequence(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, _start_state(bvp), False)
     if end is None:
         return None
-    yT = end[0]
-    checks = {}
-    att = bvp.attitude_error(yT[0:4])
-    rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
-    checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
-                                                   att <= tols["boundary_attitude_error"])
-    checks["boundary_rate_error"] = make_check(rate_nd / tau, tols["boundary_rate_error"] / tau,
-                                               rate_nd <= tols["boundary_rate_error"])
+    checks = boundary_checks(bvp, end[0], tols)
+    att = checks["boundary_attitude_error"]["value"]
     t_nd, x = replay_path(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw_nd, r.signs0, r.T)
-    rep = max(bvp.attitude_error(x[-1, 0:4]), float(np.linalg.norm(x[-1, 4:7] - bvp.wf)))
+    rep = end_error(bvp, x[-1])
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
     checks.update(rate_limit_check(bvp, x, tols))
     if failure_text(checks):
@@ -373,13 +314,14 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     switch_times = [s * tau for s in sw_nd]
     # costates: the KKT multipliers' (scaled to H(0) = -1) when SLSQP's iterate is stationary
     # (their residual below KKT_TOL), else collocation's estimate and no dense costates
-    c = c_guess = math.nan
+    c = math.nan
+    kkt_costate0 = None
     if np.all(np.isfinite(r.z)):
         yz, _ = bvp.initial(r.z)
         H0 = bvp.hamiltonian(yz, r.signs0)
         if H0 < 0.0:
-            c_guess = -1.0 / H0
-            c = c_guess if r.kkt <= KKT_TOL else math.nan
+            kkt_costate0 = np.concatenate([-tau * yz[7:11] / H0, -tau ** 2 * yz[11:14] / H0])
+            c = -1.0 / H0 if r.kkt <= KKT_TOL else math.nan
     u_first = r.signs0.copy()
     control = bang_bang_control(switch_times, u_first, problem.torque_max)
     rec = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z if c == c else np.full(6, np.nan))
@@ -390,7 +332,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     u = control(t)          # at a switch instant, the sample of the arc after it
     if c == c:
         costate = np.hstack([c * tau * Y[:, 7:11], c * tau ** 2 * Y[:, 11:14]])
-        costate0 = costate[0].copy()
+        costate0 = kkt_costate0
     else:
         costate = np.full((t.shape[0], 7), np.nan)
         costate0 = np.array(col.costate0, float)
@@ -414,11 +356,9 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     # the KKT costates as a guess for the exact solver even when they are not reported (a
     # non-stationary iterate's multipliers can still lead to the extremal)
     answer.kkt_guess = None
-    if c_guess == c_guess:
-        yz, _ = bvp.initial(r.z)
+    if kkt_costate0 is not None:
         from .guesses import Guess
-        answer.kkt_guess = Guess(np.concatenate([c_guess * tau * yz[7:11], c_guess * tau ** 2 * yz[11:14]]), tf,
-                                 switch_times, u_first, source="switch-time optimisation")
+        answer.kkt_guess = Guess(kkt_costate0, tf, switch_times, u_first, source="switch-time optimisation")
     return answer
 
 
@@ -447,11 +387,7 @@ def _dense_record(bvp, sw_nd, signs0, T, z, n_steps=100):
     dense density of the indirect answers) and once at every switch, the state with the
     costates of ``z`` (the KKT multipliers') carried along the same arcs (zeros without)."""
     events = sorted((float(t), a) for a in range(3) for t in sw_nd[a])
-    y = np.zeros(NY)
-    if np.all(np.isfinite(z)):
-        y, _ = bvp.initial(z)
-    else:
-        y[0:4], y[4:7] = bvp.q0, bvp.w0
+    y = bvp.initial(z)[0] if np.all(np.isfinite(z)) else _start_state(bvp)
     signs = np.array(signs0, float)
     ts, Ys, t0 = [np.zeros(1)], [y[None, :].copy()], 0.0
     for t1, a in events + [(T, -1)]:

@@ -35,6 +35,7 @@ from scipy.integrate import solve_ivp
 
 from slew_env.core.dynamics import propagate
 from .core import attitude_flow as af
+from .switch_time import propagate_sequence
 
 # The dense record of an extremal caps its steps at T / DENSE_STEPS (every accepted step and both
 # sides of every switch are sampled). The event-driven propagation that records it tests each
@@ -108,6 +109,12 @@ def replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
 def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
     """State at ``tf`` from switch times and first-arc signs alone (``replay_path``'s last)."""
     return replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf)[1][-1]
+
+
+def end_error(bvp, x):
+    """The worse of the attitude error (rad) and the nondimensional rate error of the state
+    ``x = [q, ω, …]`` (nondimensional) against the target: the replay check's value."""
+    return max(bvp.attitude_error(x[0:4]), float(np.linalg.norm(x[4:7] - bvp.wf)))
 
 
 def boundary_checks(bvp, yT, tols):
@@ -190,23 +197,6 @@ def switch_deviation(bvp, tr, structure, T):
     return worst
 
 
-def fixed_arcs_end(bvp, z, T, structure):
-    """Augmented state at ``T`` of the extremal ``z`` with the switches of ``structure`` at its
-    solved instants (arcs with fixed signs, no event detection)."""
-    y, _ = bvp.initial(z)
-    signs = np.array(structure.signs0, float)
-    order = np.argsort(structure.times, kind="stable")
-    t = 0.0
-    for k in list(order) + [-1]:
-        tk = T if k < 0 else min(max(float(structure.times[k]), 0.0), T)
-        if tk > t:
-            y, _, _ = bvp.arc(y, tk - t, signs)
-            t = tk
-        if k >= 0:
-            signs[int(structure.axes[k])] *= -1.0
-    return y
-
-
 def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory=None):
     """Run the checks; returns ``(all_passed, checks, first_failure_text, dense_trajectory)``.
 
@@ -224,8 +214,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory
     if bvp.mode == af.MODE_BANG:
         sw = [tr.switch_t[tr.switch_axis == i] for i in range(3)]
         if structure is not None:
-            ok_axes = (tr.switch_axis.shape[0] == structure.n and np.array_equal(tr.switch_axis, structure.axes)
-                       and np.array_equal(tr.signs0, structure.signs0))
+            ok_axes = structure.same_sequence(tr.signs0, tr.switch_axis)
             dev = switch_deviation(bvp, tr, structure, T) if ok_axes and structure.n else (
                 0.0 if ok_axes else math.inf)
             checks["switch_structure"] = make_check(dev, tols["switch_structure"],
@@ -234,10 +223,12 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory
                 # the answer is the solved switch instants: the boundary is checked at the end of
                 # their arcs (the event-driven record moves an ill-conditioned switch, and the end
                 # state with it, by up to its located deviation: checked just above)
-                checks.update(boundary_checks(bvp, fixed_arcs_end(bvp, z, T, structure), tols))
+                end = propagate_sequence(bvp, structure.times, structure.axes, structure.signs0, T,
+                                         bvp.initial(z)[0], False)
+                checks.update(boundary_checks(bvp, end[0] if end is not None else np.full(tr.y.shape[1], np.nan), tols))
                 sw = [structure.times[structure.axes == i] for i in range(3)]
         x = replay_bang_bang(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw, tr.signs0, T)
-        rep = max(bvp.attitude_error(x[0:4]), float(np.linalg.norm(x[4:7] - bvp.wf)))
+        rep = end_error(bvp, x)
     else:
         sig = np.linalg.norm(tr.y[:, 11:14] / bvp.J * bvp.umax, axis=1)
         ratio = float(np.min(sig) / max(np.max(sig), 1e-300))
@@ -251,7 +242,7 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory
         y0, _ = bvp.initial(z)
         sol = solve_ivp(rhs, (0.0, T), y0, method="Radau", rtol=1e-11, atol=1e-12)
         yR = sol.y[:, -1]
-        rep = max(bvp.attitude_error(yR[0:4]), float(np.linalg.norm(yR[4:7] - bvp.wf)))
+        rep = end_error(bvp, yR)
         # a p-norm control is continuous except where λω = 0; Radau is less accurate there
         tols["replay"] = max(tols["replay"], 1e-6)
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])

@@ -159,7 +159,7 @@ def test_an_extremal_with_a_slow_switching_crossing_is_verified_as_exact():
 
 
 def test_forward_jacobian_matches_finite_differences_also_for_clipped_instants():
-    from solvers.switch_time_opt import _forward
+    from solvers.switch_time import propagate_sequence as _forward
     from solvers.attitude_bvp import NY
     bvp = AttitudeBVP(SINGULAR)
     bvp.set_mode("bang")
