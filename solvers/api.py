@@ -111,7 +111,7 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
                 break       # (deferred candidates past the limit are never computed)
             z, T = g.to_nondim(bvp)
             st = _structure_from_guess(g, bvp)
-            if count < max_candidates and fresh(z, st):
+            if fresh(z, st):
                 yield z, T, st, g.source
                 count += 1
     if count >= max_candidates:
@@ -489,15 +489,15 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
         # no exact extremal near it (a singular arc, mostly): the fastest bang-bang slew with
         # collocation's switching sequence reaches the target exactly, where collocation's own
         # control misses it by its discretisation error
-        bang = None
+        bang = kkt_guess = None
         if budget - spent() > 0.05:
             from .switch_time_opt import bang_bang_answer
-            bang = bang_bang_answer(prob, col, time_budget=min(BANG_BANG_BUDGET, budget - spent()),
-                                    tols=options.get("tols"))
-        if bang is not None and bang.kkt_guess is not None and budget - spent() > 0.05:
+            bang, kkt_guess = bang_bang_answer(prob, col, time_budget=min(BANG_BANG_BUDGET, budget - spent()),
+                                               tols=options.get("tols"))
+        if bang is not None and kkt_guess is not None and budget - spent() > 0.05:
             # the optimised sequence's KKT costates and switch instants: if the optimum is
             # bang-bang after all, they are its extremal's, and the exact solver certifies it
-            ex = _solve_indirect(prob, "indirect", bang.kkt_guess, first_verified=True, **dict(
+            ex = _solve_indirect(prob, "indirect", kkt_guess, first_verified=True, **dict(
                 options, max_candidates=1, min_candidates=1, enough=1,
                 time_budget=min(BANG_BANG_BUDGET, budget - spent())))
             if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):

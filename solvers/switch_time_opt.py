@@ -251,9 +251,10 @@ PULSE_ROUNDS = (0, 4, 8)
 
 
 def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
-    """A verified bang-bang answer from a collocation answer ``col`` of a rest-to-rest-or-not,
-    full-attitude, per-axis problem without cones, or ``None`` when it does not apply or is
-    not at least as fast as ``col`` (within ``col.tf_tol``).
+    """``(answer, kkt_guess)``: a verified bang-bang answer from a collocation answer ``col`` of a
+    full-attitude, per-axis problem without cones, and a ``Guess`` for the exact solver from its
+    KKT costates (``None`` when they give no normal costate); ``(None, None)`` when it does not
+    apply or is not at least as fast as ``col`` (within ``col.tf_tol``).
 
     The switch times are optimised (``optimise_switch_times``) on the collocation answer's
     sequence; the answer is verified like an indirect one where that applies: the boundary
@@ -270,7 +271,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     t0 = time.perf_counter()
     if (not col.success or problem.cones or problem.qf is None or not math.isinf(problem.torque_norm)
             or col.switch_times is None or len(col.t) < 2):
-        return None
+        return None, None
     tols = dict(DEFAULT_TOLS, **(tols or {}))
     bvp = AttitudeBVP(problem)
     tau = bvp.tau
@@ -293,12 +294,12 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
             break
         r = ri
     if r is None:
-        return None
+        return None, None
     sw_nd = [_drop_null_pulses(x, r.T) for x in r.switch_times()]
     ax = np.concatenate([np.full(len(x), a, dtype=np.int64) for a, x in enumerate(sw_nd)])
     end = propagate_sequence(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, _start_state(bvp), False)
     if end is None:
-        return None
+        return None, None
     checks = boundary_checks(bvp, end[0], tols)
     att = checks["boundary_attitude_error"]["value"]
     t_nd, x = replay_path(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw_nd, r.signs0, r.T)
@@ -306,11 +307,11 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
     checks.update(rate_limit_check(bvp, x, tols))
     if failure_text(checks):
-        return None
+        return None, None
     tf = r.T * tau
     col_tol = float(col.tf_tol) if col.tf_tol == col.tf_tol else 0.0
     if not tf <= col.tf + col_tol:
-        return None
+        return None, None
     switch_times = [s * tau for s in sw_nd]
     # costates: the KKT multipliers' (scaled to H(0) = -1) when SLSQP's iterate is stationary
     # (their residual below KKT_TOL), else collocation's estimate and no dense costates
@@ -326,7 +327,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     control = bang_bang_control(switch_times, u_first, problem.torque_max)
     rec = _dense_record(bvp, sw_nd, r.signs0, r.T, r.z if c == c else np.full(6, np.nan))
     if rec is None:
-        return None
+        return None, None
     t_rec, Y = rec
     t = t_rec * tau
     u = control(t)          # at a switch instant, the sample of the arc after it
@@ -355,11 +356,11 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
                         baseline_tf=col.baseline_tf, verification=checks, problem=problem, _control=control)
     # the KKT costates as a guess for the exact solver even when they are not reported (a
     # non-stationary iterate's multipliers can still lead to the extremal)
-    answer.kkt_guess = None
+    kkt_guess = None
     if kkt_costate0 is not None:
         from .guesses import Guess
-        answer.kkt_guess = Guess(kkt_costate0, tf, switch_times, u_first, source="switch-time optimisation")
-    return answer
+        kkt_guess = Guess(kkt_costate0, tf, switch_times, u_first, source="switch-time optimisation")
+    return answer, kkt_guess
 
 
 STATUS_MESSAGES_SUCCESS_BANG = ("Verified bang-bang slew with optimised switch times (not an extremal: the "

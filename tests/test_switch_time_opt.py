@@ -125,9 +125,9 @@ def test_switch_time_optimisation_rejects_what_it_does_not_cover():
         optimise_switch_times(SlewProblem([1, 1, 1], qf=[0, 1, 0, 0], torque_norm=2), [1, 1, 1], [0], [0.5], 2.0)
     # no bang-bang answer for cone problems or failed collocation answers: the caller keeps its own
     col = solve_collocation(SINGULAR)
-    assert bang_bang_answer(SINGULAR.replace(cones=[Cone([0, 0, 1], 0.2)]), col) is None
+    assert bang_bang_answer(SINGULAR.replace(cones=[Cone([0, 0, 1], 0.2)]), col) == (None, None)
     col.success = False
-    assert bang_bang_answer(SINGULAR, col) is None
+    assert bang_bang_answer(SINGULAR, col) == (None, None)
 
 
 # held-out problem 1: an asymmetric body whose optimum is bang-bang with a short pulse on axis x,
