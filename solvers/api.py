@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Optional
 
 import numpy as np
@@ -228,8 +229,13 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     # pointing-cones warm start challenges that answer afterwards (``_cone_challenger``)
     challenge = (method == "auto" and bool(prob.cones) and guess is None and isinstance(warm_start, str)
                  and warm_start == "default")
+    later = None
     if guess is None and not challenge:
-        warm, info = _warm_start(prob, method, warm_start, options)
+        # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
+        # structure (milliseconds) first; its continuation candidates after collocation, unless
+        # collocation shows a singular arc, where they cannot converge (``_solve_auto``)
+        split = method == "auto" and _switch_time_applies(prob)
+        warm, info, later = _warm_start(prob, method, warm_start, options, split=split)
         if warm is not None and warm.success:
             warm.wall_time = time.perf_counter() - t0
             return warm
@@ -241,7 +247,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         # where the exact refinement after collocation does not succeed either (it succeeds
         # in well under a second when it does), so its budget is cut from 2 s
         failed_warm = bool(info.get("covered")) and not info.get("succeeded")
-        sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0)
+        sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0,
+                          later=later, warm_info=info)
     elif prob.cones:
         sol = _solve_indirect_cones(prob, guess, col_opts, rest)
     else:
@@ -255,17 +262,39 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         if warm is not None:
             sol.nit += warm.nit
             sol.nfev += warm.nfev
-            sol.route = f"learned guess failed ({warm.message[:160]}) → {sol.route}"
+            what = "learned guess's structured candidates" if later is not None else "learned guess"
+            sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     return sol
 
 
-def _warm_start(prob, method, warm_start, options):
-    """Try the model's guess alone; returns ``(solution or None, info)``."""
+def _switch_time_applies(prob) -> bool:
+    """Full-attitude target, per-axis bound, no cones: ``auto``'s switch-time answer applies."""
+    return not prob.cones and prob.qf is not None and math.isinf(prob.torque_norm)
+
+
+def _split_continuation(g: Guess):
+    """``(fast, later)``: ``g`` with only the candidates that carry a switching structure (or
+    are deferred: a model's deferred candidates carry one), and the others — costates alone,
+    solved by smoothing continuation, up to a second each — as one guess, or ``None``. A guess
+    without a structure of its own is not split."""
+    if g.switch_times is None:
+        return g, None
+    keep = [c for c in g.candidates if not isinstance(c, Guess) or c.switch_times is not None]
+    rest = [c for c in g.candidates if isinstance(c, Guess) and c.switch_times is None]
+    if not rest:
+        return g, None
+    return replace(g, candidates=keep), replace(rest[0], candidates=rest[1:])
+
+
+def _warm_start(prob, method, warm_start, options, split=False):
+    """Try the model's guess alone; returns ``(solution or None, info, later)``: ``later`` is
+    ``None`` unless ``split``, then the guess's continuation candidates, not tried here
+    (``_split_continuation``)."""
     from . import warmstart
     model = warmstart.resolve(warm_start, prob)
     if model is None:
-        return None, {}
+        return None, {}, None
     name = getattr(model, "name", type(model).__name__)
     t0 = time.perf_counter()
     try:
@@ -278,11 +307,14 @@ def _warm_start(prob, method, warm_start, options):
         # a model that cannot produce a guess must not stop the solve: the classical route
         # runs, and the error is recorded (the answer is verified either way)
         return None, {"model": name, "covered": True, "succeeded": False,
-                      "error": f"{type(e).__name__}: {e}"[:300]}
+                      "error": f"{type(e).__name__}: {e}"[:300]}, None
     if why:
-        return None, {"model": name, "covered": False, "reason": why}
+        return None, {"model": name, "covered": False, "reason": why}, None
     if not isinstance(g, Guess):
         raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
+    later = None
+    if split and not prob.cones:
+        g, later = _split_continuation(g)
     t_guess = time.perf_counter() - t0
     t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", t_guess))
     # a model may load the solver's compiled code first (once per process), so that its
@@ -302,10 +334,12 @@ def _warm_start(prob, method, warm_start, options):
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
     if t_warm:
         info["warm_up_s"] = t_warm
+    if later is not None:
+        info["deferred"] = 1 + len(later.candidates)
     sol.warm_start = info
     if sol.success:
         sol.route = f"learned guess ({name}) → {sol.route}"
-    return sol, info
+    return sol, info, later
 
 
 def _no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
@@ -357,7 +391,7 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
     if model is None:
         return sol
     try:
-        ch, info = _warm_start(prob, "auto", "pointing-cones", dict(options, warm_budget=budget))
+        ch, info, _ = _warm_start(prob, "auto", "pointing-cones", dict(options, warm_budget=budget))
     except Exception as e:   # noqa: BLE001 - the verified answer stands; the failure is recorded
         ch, info = None, {"model": getattr(model, "name", type(model).__name__), "covered": True,
                           "succeeded": False, "error": f"{type(e).__name__}: {e}"[:300]}
@@ -427,16 +461,20 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     return last
 
 
-def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
+def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm_info=None) -> SlewSolution:
     """The fastest route to a verified answer.
 
     1. a given ``guess`` alone, by the indirect route (a warm start);
-    2. direct collocation, then exact indirect refinement from its costates and
-       switching structure (the bang-bang extremal near the collocation answer), with the
-       eigenaxis guess as a second candidate;
-    3. if the refinement cannot be certified (for instance a singular arc, where the
-       optimum is not bang-bang), the collocation answer itself, verified by its own
-       checks and labelled as such in ``route`` and ``message``;
+    2. direct collocation; where its control shows a singular arc (full-attitude, per-axis,
+       ``switch_time_opt.singular_arc_evidence``), straight to 3b;
+    3. otherwise ``later`` (the learned guess's continuation candidates, held back by
+       ``solve``; ``warm_info`` is updated if one wins), then exact indirect refinement from
+       collocation's costates and switching structure (the bang-bang extremal near the
+       collocation answer), with the eigenaxis guess as a second candidate;
+    3b. if no exact extremal is certified (a singular arc, mostly), a bang-bang slew with
+       collocation's switching sequence and optimised switch times (``method="switch-time"``),
+       whose KKT costates go to the exact solver first; failing that, the collocation answer
+       itself, verified by its own checks and labelled as such in ``route`` and ``message``;
     4. if collocation fails, the classical indirect multi-start.
     Keep-out cones go to collocation; its answer is refined exactly when the cones are inactive
     (the extremal without cones) or touched at isolated instants (touch-point junctions), and
@@ -476,16 +514,33 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
         col.wall_time = spent()
         return col
     if col.success:
-        # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
-        # problem, where the λω = 0 instant makes a near guess hard to refine)
-        ref, accepted = _refine_collocation(prob, col, options, 2,
-                                            max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
-        if accepted:
-            ref.route = f"auto: collocation ({col.wall_time:.3g} s) → indirect refinement: {ref.route}"
-            ref.wall_time = spent()
-            return ref
-        why = ref.message if not ref.success else (
-            f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
+        from .switch_time_opt import singular_arc_evidence
+        singular = singular_arc_evidence(prob, col) if _switch_time_applies(prob) else None
+        ref = None
+        if singular is None:
+            if later is not None and budget - spent() > 0.05:
+                lg = _solve_indirect(prob, "indirect", later, first_verified=True, **dict(
+                    options, max_candidates=1 + len(later.candidates), min_candidates=1, enough=1,
+                    time_budget=min(WARM_BUDGET, budget - spent())))
+                if lg.success:
+                    if warm_info is not None:
+                        warm_info.update(succeeded=True, after_collocation=True)
+                    lg.route = (f"auto: collocation ({col.wall_time:.3g} s; no singular arc in its control) → "
+                                f"the learned guess's continuation candidate: {lg.route}")
+                    lg.wall_time = spent()
+                    return lg
+            # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
+            # problem, where the λω = 0 instant makes a near guess hard to refine)
+            ref, accepted = _refine_collocation(prob, col, options, 2,
+                                                max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            if accepted:
+                ref.route = f"auto: collocation ({col.wall_time:.3g} s) → indirect refinement: {ref.route}"
+                ref.wall_time = spent()
+                return ref
+            why = ref.message if not ref.success else (
+                f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
+        else:
+            why = f"not tried: {singular}"
         # no exact extremal near it (a singular arc, mostly): the fastest bang-bang slew with
         # collocation's switching sequence reaches the target exactly, where collocation's own
         # control misses it by its discretisation error
@@ -503,18 +558,29 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0) -> SlewSolution:
             if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):
                 ex.route = (f"auto: collocation ({col.wall_time:.3g} s) → {bang.route} → exact extremal from its "
                             f"KKT costates: {ex.route}")
-                ex.nit += bang.nit + ref.nit
-                ex.nfev += bang.nfev + ref.nfev
+                ex.nit += bang.nit + (ref.nit if ref is not None else 0)
+                ex.nfev += bang.nfev + (ref.nfev if ref is not None else 0)
                 ex.wall_time = spent()
                 return ex
             bang.message += f" The exact solver from its KKT costates: {ex.message[:200]}"
         if bang is not None:
-            bang.route = (f"auto: collocation ({col.wall_time:.3g} s; exact refinement not certified: "
-                          f"{why[:200]}) → {bang.route}")
-            bang.nit += ref.nit
-            bang.nfev += ref.nfev
+            bang.route = (f"auto: collocation ({col.wall_time:.3g} s; exact refinement "
+                          f"{'not certified' if ref is not None else 'skipped'}: {why[:200]}) → {bang.route}")
+            bang.nit += ref.nit if ref is not None else 0
+            bang.nfev += ref.nfev if ref is not None else 0
             bang.wall_time = spent()
             return bang
+        if ref is None and budget - spent() > 0.05:
+            # a singular arc in sight but no bang-bang answer: the exact refinement after all
+            ref, accepted = _refine_collocation(prob, col, options, 2,
+                                                max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            if accepted:
+                ref.route = (f"auto: collocation ({col.wall_time:.3g} s; no switch-time answer) → indirect "
+                             f"refinement: {ref.route}")
+                ref.wall_time = spent()
+                return ref
+            why += "; " + (ref.message if not ref.success else
+                           f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
         col.route = f"auto: collocation ({col.route}; exact refinement not certified: {why[:300]})"
         col.message = (f"{col.message} Collocation answer (approximate, its own tolerances); the exact "
                        f"bang-bang refinement was not certified.")

@@ -242,6 +242,53 @@ def sequence_from_samples(t, u, umax, switch_times, u_first, min_unknowns=7, ext
     return signs0, np.asarray(axes, dtype=np.int64)[o], np.asarray(times, float)[o]
 
 
+# A singular arc shows in a collocation answer as a long run of consecutive samples where one
+# axis's torque is interior (|u| < 0.98 u_max); a switch gives a run of 2-7 samples. On 400
+# held-out full-attitude problems (collocation's defaults), the longest run was at most 0.058 tf
+# on all 352 with a bang-bang optimum and above 0.06 tf on 37 of the 48 singular ones.
+SINGULAR_RUN = 0.06
+SINGULAR_RUN_SAMPLES = 8
+
+
+def interior_run(t, u, umax, interior=0.98):
+    """``(axis, start, length, samples)``: the longest run of consecutive samples ``t`` on which
+    one axis's torque ``u`` is interior (``|u_i| < interior · umax_i``); ``length`` in the
+    units of ``t`` (from the run's first sample to the first one after it). ``axis`` is -1
+    when no sample is interior."""
+    t = np.asarray(t, float)
+    inside = np.abs(np.asarray(u, float)) < interior * np.asarray(umax, float)[None, :]
+    best = (-1, math.nan, 0.0, 0)
+    for a in range(inside.shape[1]):
+        k = 0
+        while k < t.shape[0]:
+            if not inside[k, a]:
+                k += 1
+                continue
+            j = k
+            while j < t.shape[0] and inside[j, a]:
+                j += 1
+            length = float(t[min(j, t.shape[0] - 1)] - t[k])
+            if length > best[2]:
+                best = (a, float(t[k]), length, j - k)
+            k = j
+    return best
+
+
+def singular_arc_evidence(problem, col):
+    """A sentence naming the singular arc that a collocation answer ``col`` shows (a run of
+    interior torque on one axis over at least ``SINGULAR_RUN`` of tf and ``SINGULAR_RUN_SAMPLES``
+    samples), or ``None``. Where it names one, ``auto`` skips the exact refinement (no bang-bang
+    extremal is near) and goes to the switch-time answer, whose KKT costates still go to the exact
+    solver (a bang-bang optimum that only looks singular is certified there)."""
+    if not col.success or col.t is None or len(col.t) < 2 or col.u is None:
+        return None
+    a, start, length, n = interior_run(col.t, col.u, problem.torque_max)
+    if a < 0 or n < SINGULAR_RUN_SAMPLES or not length >= SINGULAR_RUN * float(col.tf):
+        return None
+    return (f"collocation's torque on axis {a + 1} is interior over {length / col.tf:.0%} of tf "
+            f"(from t = {start:.4g}, {n} samples): a singular arc")
+
+
 # SLSQP iterations for auto's bang-bang answer: on held-out singular problems 20 iterations
 # already reach within ~1e-5 (relative) of the 300-iteration tf, below collocation's
 SLSQP_ITERATIONS = 60

@@ -12,7 +12,8 @@ from slew_env import Cone, SlewProblem
 from solvers import Guess, solve
 from solvers.attitude_bvp import AttitudeBVP
 from solvers.collocation import solve_collocation
-from solvers.switch_time_opt import bang_bang_answer, optimise_switch_times, sequence_from_samples
+from solvers.switch_time_opt import (bang_bang_answer, interior_run, optimise_switch_times, sequence_from_samples,
+                                     singular_arc_evidence)
 
 EXAMPLES = os.path.join(os.path.dirname(__file__), os.pardir, "examples")
 # held-out full-attitude problem 32 (seed 20261122): J = I; no bang-bang optimum (one axis's
@@ -77,6 +78,10 @@ def test_auto_answers_a_singular_problem_with_an_exactly_feasible_bang_bang_slew
     s = solve(SINGULAR)
     assert s.success and s.method == "switch-time" and not s.exact
     assert "switch-time optimisation" in s.route and "not an extremal" in s.message
+    # collocation's control shows the singular arc: the exact refinement is skipped
+    assert singular_arc_evidence(SINGULAR, col) is not None
+    assert "exact refinement skipped" in s.route and "a singular arc" in s.route
+    assert "indirect refinement" not in s.route
     att, rate = _replay(SINGULAR, s.switch_times, s.u_first, s.tf)
     assert att < 1e-9 and rate < 1e-9
     # never slower than collocation's answer (beyond its tolerance), nor than the eigenaxis slew
@@ -212,3 +217,25 @@ def test_dense_record_takes_simultaneous_switches_of_two_axes():
     assert t[0] == 0.0 and t[-1] == pytest.approx(1.8) and np.all(np.diff(t) >= 0)
     # rest to rest under u = +1 then -1 on y, z: ω_y back to 0 at 1.8
     assert Y[-1, 5] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_interior_run_finds_the_longest_stretch_of_interior_torque():
+    t = np.linspace(0.0, 1.0, 11)
+    u = np.ones((11, 3))
+    u[2:4, 0] = 0.5            # 2 samples, from t = 0.2 to the next bang sample at 0.4
+    u[5:9, 1] = -0.1           # 4 samples, 0.5 to 0.9
+    u[10, 2] = 0.0             # the last sample alone: no length
+    a, start, length, n = interior_run(t, u, [1.0, 1.0, 1.0])
+    assert (a, n) == (1, 4) and start == pytest.approx(0.5) and length == pytest.approx(0.4)
+    assert interior_run(t, np.ones((11, 3)), [1.0, 1.0, 1.0])[0] == -1
+    # the bound is per axis
+    assert interior_run(t, u, [1.0, 0.05, 1.0])[0] == 0
+
+
+def test_a_bang_bang_optimum_shows_no_singular_arc_in_collocation():
+    p = SlewProblem.from_dict(json.load(open(os.path.join(EXAMPLES, "r3_seed_report_per_axis.json"))))
+    col = solve_collocation(p)
+    assert col.success and singular_arc_evidence(p, col) is None
+    col_s = solve_collocation(SINGULAR)
+    text = singular_arc_evidence(SINGULAR, col_s)
+    assert text is not None and "interior over" in text

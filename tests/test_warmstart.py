@@ -351,3 +351,45 @@ def test_deferred_candidates_run_only_when_reached():
         Guess(r["costate0"], r["tf"], candidates=[3.0]).all()
     with pytest.raises(ValueError, match="deferred candidate returned str"):
         Guess(r["costate0"], r["tf"], candidates=[lambda: "x"]).all()
+
+
+def test_auto_holds_a_costates_only_candidate_until_collocation_shows_no_singular_arc():
+    r = _exact()[5]
+    prob = SlewProblem.from_dict(r["problem"])
+
+    class Model:
+        name = "split"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):   # a wrong structured guess, then the right costates alone
+            return Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned",
+                         candidates=[Guess(r["costate0"], r["tf"], source="learned-costate")])
+    s = solve(prob, warm_start=Model())
+    assert s.success and s.exact and s.tf == pytest.approx(r["tf"], rel=1e-7)
+    assert s.guess == "learned-costate" and s.warm_start["deferred"] == 1
+    assert s.warm_start["succeeded"] and s.warm_start["after_collocation"]
+    assert "no singular arc" in s.route and "continuation candidate" in s.route
+    assert s.route.startswith("learned guess's structured candidates failed")
+    # the indirect method (no collocation) tries every candidate in the warm stage
+    s2 = solve(prob, method="indirect", warm_start=Model())
+    assert s2.success and s2.guess == "learned-costate" and "after_collocation" not in s2.warm_start
+    assert "deferred" not in s2.warm_start and s2.route.startswith("learned guess (split)")
+
+
+def test_split_continuation_keeps_structured_and_deferred_candidates_first():
+    from solvers.api import _split_continuation
+    z = np.array([0, 1, 0, 0, 1, 1, 1.0])
+    made = lambda: None  # noqa: E731
+    g = Guess(z, 1.0, [[0.5], [], []], [1, 1, 1], source="a",
+              candidates=[made, Guess(z, 1.1, source="c1"), Guess(z, 1.2, [[], [], []], [1, 1, 1], source="s"),
+                          Guess(z, 1.3, source="c2")])
+    fast, later = _split_continuation(g)
+    assert fast.source == "a" and [c if callable(c) else c.source for c in fast.candidates] == [made, "s"]
+    assert [c.source for c in later.all()] == ["c1", "c2"]
+    assert len(g.candidates) == 4          # the model's guess is not changed
+    # nothing to hold back, or no structure of its own: not split
+    assert _split_continuation(fast) == (fast, None)
+    plain = Guess(z, 1.0, source="p", candidates=[Guess(z, 1.1, source="c")])
+    assert _split_continuation(plain) == (plain, None)

@@ -212,7 +212,8 @@ def summary_lines(sol, prob, warm=None):
             L.append(f"warm start    {ws.get('model')}, as a challenger after the route "
                      f"(inference {1e6 * ws.get('inference_s', 0):.0f} µs): {res}")
         elif ws.get("covered"):
-            res = "its guess won" if ws.get("succeeded") else "its guess failed, classical route used"
+            res = ("its continuation candidate won, after collocation" if ws.get("after_collocation") else
+                   "its guess won" if ws.get("succeeded") else "its guess failed, classical route used")
             L.append(f"warm start    {ws.get('model')}: inference {1e6 * ws.get('inference_s', 0):.0f} µs, {res}")
         else:
             L.append(f"warm start    {ws.get('model')}: not used ({ws.get('reason')})")

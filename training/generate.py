@@ -148,7 +148,7 @@ def solve_warm(problem, model=None, fallback=False, **options):
     prob = SlewProblem.from_dict(problem)
     if fallback:
         return solvers.solve(prob, warm_start=model or "default", **options)
-    sol, info = _warm_start(prob, "indirect", model or "default", options)
+    sol, info, _ = _warm_start(prob, "indirect", model or "default", options)
     if sol is None and info.get("covered") is False:
         raise ValueError(f"warm start: the model does not cover this problem ({info.get('reason')})")
     if sol is None:

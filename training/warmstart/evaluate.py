@@ -68,7 +68,7 @@ def _run_one(args):
         try:
             if name in ("learned", "nearest-neighbour"):
                 model = _W["model"] if name == "learned" else _W["nn"]
-                sol, info = _warm_start(prob, "indirect", model, {"warm_budget": warm_budget})
+                sol, info, _ = _warm_start(prob, "indirect", model, {"warm_budget": warm_budget})
                 if sol is None and info.get("covered") is False:
                     out.append({"index": index, "guess": name, "covered": False, "reason": info.get("reason")})
                     continue
