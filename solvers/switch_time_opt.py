@@ -312,14 +312,10 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     (in the scale ``H(0) = -1``; where they give no normal costate, ``costate0`` is
     collocation's estimate and the dense costates are NaN). Their switching functions show
     where the optimum leaves the bang-bang law (a singular arc)."""
-    from .solution import STATUS_SUCCESS, SlewSolution
-    from .verify import (DEFAULT_TOLS, boundary_checks, end_error, failure_text, make_check, rate_limit_check,
-                         replay_path)
     t0 = time.perf_counter()
     if (not col.success or problem.cones or problem.qf is None or not math.isinf(problem.torque_norm)
             or col.switch_times is None or len(col.t) < 2):
         return None, None
-    tols = dict(DEFAULT_TOLS, **(tols or {}))
     bvp = AttitudeBVP(problem)
     tau = bvp.tau
     sw = [np.asarray(s, float) / tau for s in col.switch_times]
@@ -342,6 +338,97 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
         r = ri
     if r is None:
         return None, None
+    col_tol = float(col.tf_tol) if col.tf_tol == col.tf_tol else 0.0
+    if not r.T * tau <= col.tf + col_tol:
+        return None, None
+    n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
+    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
+    tf = r.T * tau
+    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; KKT residual "
+             f"{r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} "
+             f"± {col_tol:.1g}")
+    comparison = f"against collocation's {col.tf:.9g} ± {col_tol:.1g}"
+    answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison, lambda att: max(
+        tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * att)), np.array(col.costate0, float), t0)
+    if answer is not None:
+        answer.nit += int(col.nit)
+        answer.nfev += int(col.nfev)
+        answer.guess, answer.n_candidates = col.guess, col.n_candidates
+        answer.candidates_tf, answer.baseline_tf = list(col.candidates_tf or []), col.baseline_tf
+    return answer, kkt_guess
+
+
+def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
+                             max_iter=SLSQP_ITERATIONS, first=False):
+    """``(answer, kkt_guess)`` like ``bang_bang_answer``, from given switching sequences instead
+    of a collocation answer: ``sequences`` holds ``(u_first, switch_times, tf)`` in the
+    problem's units (per-axis lists of instants, for instance a near problem's answer); each is
+    optimised in turn (``max_iter`` SLSQP iterations) until the time is spent, and the fastest
+    verified one is the answer (``first``: the first verified one). There is no collocation
+    answer to compare with, so ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the
+    caller on held-out problems) or NaN. The KKT guess is given only when the answer is a KKT
+    point of its sequence (residual at most ``KKT_TOL``): after a few iterations on a singular
+    problem it is not, and the exact solver from it would fail, at tens of milliseconds."""
+    t0 = time.perf_counter()
+    if problem.cones or problem.qf is None or not math.isinf(problem.torque_norm):
+        return None, None
+    bvp = AttitudeBVP(problem)
+    tau = bvp.tau
+    best = None
+    tried = 0
+    for u_first, switch_times, tf in sequences:
+        left = time_budget - (time.perf_counter() - t0)
+        if left <= 0.0 and tried:
+            break
+        tried += 1
+        signs0 = np.where(np.asarray(u_first, float) < 0, -1.0, 1.0)
+        axes = np.array([a for a in range(3) for _ in switch_times[a]], dtype=np.int64)
+        times = np.array([float(x) for a in range(3) for x in switch_times[a]]) / tau
+        o = np.argsort(times, kind="stable")
+        # at least the 6 boundary conditions' worth of unknowns: a pulse pair in the middle
+        # of each axis until there are (as ``sequence_from_samples`` does)
+        extra_axes, extra_times, a = [], [], 0
+        while axes.size + len(extra_axes) + 1 < 7:
+            extra_axes += [a % 3, a % 3]
+            extra_times += [0.5 * tf / tau] * 2
+            a += 1
+        axes = np.concatenate([axes[o], np.array(extra_axes, dtype=np.int64)])
+        times = np.concatenate([times[o], extra_times])
+        o = np.argsort(times, kind="stable")
+        ri = optimise_switch_times(problem, signs0, axes[o], times[o], tf / tau, time_budget=max(left, 0.01),
+                                   max_iter=max_iter, bvp=bvp)
+        if ri.success and (best is None or ri.T < best[0].T):
+            best = (ri, tried)
+            if first:
+                break
+    if best is None:
+        return None, None
+    r, k = best
+    tf = r.T * tau
+    n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
+    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
+    route = (f"bang-bang switch-time optimisation of the sequence of {source} {k} of {tried} ({n} switches, {how}; "
+             f"KKT residual {r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g}")
+    comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
+    answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison,
+                                lambda att: max(tf * tf_rel_tol, tf * 10.0 * att) if tf_rel_tol == tf_rel_tol
+                                else math.nan, np.full(7, np.nan), t0)
+    if answer is not None:
+        answer.guess, answer.n_candidates = source, tried
+    return answer, (kkt_guess if r.kkt <= KKT_TOL else None)
+
+
+def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costate0, t0):
+    """The verified ``SlewSolution`` of an optimised sequence ``r`` and its KKT guess, or
+    ``(None, None)`` if a check fails: boundary errors at the end of the DOP853 arcs, an RK4
+    replay of the switch times, the rate limit. ``tf_tol_of(attitude/rate miss)`` gives its
+    ``tf_tol``; ``fallback_costate0`` is reported when the KKT multipliers give no costates."""
+    from .guesses import Guess
+    from .solution import STATUS_SUCCESS, SlewSolution
+    from .verify import (DEFAULT_TOLS, boundary_checks, end_error, failure_text, make_check, rate_limit_check,
+                         replay_path)
+    tols = dict(DEFAULT_TOLS, **(tols or {}))
+    tau = bvp.tau
     sw_nd = [_drop_null_pulses(x, r.T) for x in r.switch_times()]
     ax = np.concatenate([np.full(len(x), a, dtype=np.int64) for a, x in enumerate(sw_nd)])
     end = propagate_sequence(bvp, np.concatenate(sw_nd), ax, r.signs0, r.T, _start_state(bvp), False)
@@ -356,12 +443,9 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     if failure_text(checks):
         return None, None
     tf = r.T * tau
-    col_tol = float(col.tf_tol) if col.tf_tol == col.tf_tol else 0.0
-    if not tf <= col.tf + col_tol:
-        return None, None
     switch_times = [s * tau for s in sw_nd]
     # costates: the KKT multipliers' (scaled to H(0) = -1) when SLSQP's iterate is stationary
-    # (their residual below KKT_TOL), else collocation's estimate and no dense costates
+    # (their residual below KKT_TOL), else the fallback estimate and no dense costates
     c = math.nan
     kkt_costate0 = None
     if np.all(np.isfinite(r.z)):
@@ -383,29 +467,20 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
         costate0 = kkt_costate0
     else:
         costate = np.full((t.shape[0], 7), np.nan)
-        costate0 = np.array(col.costate0, float)
-    # the optimal time is at most this feasible slew's, and collocation estimates it to its
-    # tf_tol (an estimate, not a bound); the replay bounds how exactly this one reaches the target
-    tf_tol = max(tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * max(att, rep)))
+        costate0 = fallback_costate0
     n = int(ax.shape[0])
-    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
-    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; KKT residual "
-             f"{r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} "
-             f"± {col_tol:.1g}")
     message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
-               f"takes {tf:.9g}, against collocation's {col.tf:.9g} ± {col_tol:.1g}.")
-    answer = SlewSolution(True, STATUS_SUCCESS, message, nit=int(col.nit) + r.nit, nfev=int(col.nfev) + r.nfev,
-                        wall_time=time.perf_counter() - t0, tf=tf, tf_tol=tf_tol,
-                        costate0=costate0, switch_times=switch_times,
-                        u_first=u_first, t=t, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
-                        costate=costate, method="switch-time", route=route,
-                        guess=col.guess, n_candidates=col.n_candidates, candidates_tf=list(col.candidates_tf or []),
-                        baseline_tf=col.baseline_tf, verification=checks, problem=problem, _control=control)
+               f"takes {tf:.9g}, {comparison}.")
+    answer = SlewSolution(True, STATUS_SUCCESS, message, nit=r.nit, nfev=r.nfev,
+                          wall_time=time.perf_counter() - t0, tf=tf, tf_tol=tf_tol_of(max(att, rep)),
+                          costate0=costate0, switch_times=switch_times,
+                          u_first=u_first, t=t, q=Y[:, 0:4].copy(), omega=Y[:, 4:7] / tau, u=u,
+                          costate=costate, method="switch-time", route=route,
+                          baseline_tf=math.nan, verification=checks, problem=problem, _control=control)
     # the KKT costates as a guess for the exact solver even when they are not reported (a
     # non-stationary iterate's multipliers can still lead to the extremal)
     kkt_guess = None
     if kkt_costate0 is not None:
-        from .guesses import Guess
         kkt_guess = Guess(kkt_costate0, tf, switch_times, u_first, source="switch-time optimisation")
     return answer, kkt_guess
 

@@ -21,6 +21,9 @@ DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
 DEFAULT_CONE_MODEL_FILE = os.path.join(MODELS_DIR, "pointing-cones.npz")
 # its table of solved problems, whose nearest solutions are tried before the network's guess
 DEFAULT_CONE_TABLE_FILE = os.path.join(MODELS_DIR, "pointing-cones.nn.npz")
+# which full-attitude problems are singular, and the near singular answers' sequences
+# (``singular_table``): ``auto``'s route when the default model's guess fails
+DEFAULT_SINGULAR_TABLE_FILE = os.path.join(MODELS_DIR, "full-attitude-singular.npz")
 
 
 def load_model(path):
@@ -48,6 +51,15 @@ def _load_cached(path, key):
 def default_model() -> WarmStartModel:
     """The shipped model (loaded once per process)."""
     return WarmStartModel.load(DEFAULT_MODEL_FILE)
+
+
+@functools.lru_cache(maxsize=1)
+def default_singular_table():
+    """The shipped singular table (loaded once per process), or ``None`` if none is shipped."""
+    if not os.path.exists(DEFAULT_SINGULAR_TABLE_FILE):
+        return None
+    from .singular_table import SingularTable
+    return SingularTable.load(DEFAULT_SINGULAR_TABLE_FILE)
 
 
 def default_cone_model():
@@ -113,4 +125,4 @@ __all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "fe
            "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
            "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
            "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
-           "default_cone_model"]
+           "default_cone_model", "default_singular_table", "DEFAULT_SINGULAR_TABLE_FILE"]

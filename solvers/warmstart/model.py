@@ -79,6 +79,20 @@ def read_npz(path) -> dict:
         raise ModelFileError(f"model: {path} is not a readable .npz model file ({type(e).__name__}: {e})") from None
 
 
+def read_table(path, fmt, version):
+    """``(arrays, card)`` of a table file (``.npz`` with a JSON ``card`` of ``format`` ``fmt``
+    and ``format_version`` ``version``); ``ModelFileError`` otherwise."""
+    path = os.fspath(path)
+    d = read_npz(path)
+    try:
+        card = json.loads(str(d["card"]))
+    except (KeyError, json.JSONDecodeError) as e:
+        raise ModelFileError(f"model: {path} has no readable card ({e})") from None
+    if card.get("format") != fmt or card.get("format_version") != version:
+        raise ModelFileError(f"model: {path} is not a {fmt} v{version} file")
+    return d, card
+
+
 def _act(name, h):
     if name == "silu":
         return 0.5 * h * (1.0 + np.tanh(0.5 * h))   # h·sigmoid(h), without overflow

@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from slew_env import SlewProblem
 from ..guesses import Guess
 from .features import canonical_form, solution_from_canonical, unsupported_reason
-from .model import ModelFileError, read_npz
+from .model import read_table
 
 NN_FORMAT = "slewopt-nn"
 NN_FORMAT_VERSION = 1
@@ -63,13 +63,7 @@ class NearestNeighbourModel:
     @classmethod
     def load(cls, path):
         path = os.fspath(path)
-        d = read_npz(path)
-        try:
-            card = json.loads(str(d["card"]))
-        except (KeyError, json.JSONDecodeError) as e:
-            raise ModelFileError(f"model: {path} has no readable card ({e})") from None
-        if card.get("format") != NN_FORMAT or card.get("format_version") != NN_FORMAT_VERSION:
-            raise ModelFileError(f"model: {path} is not a {NN_FORMAT} v{NN_FORMAT_VERSION} file")
+        d, card = read_table(path, NN_FORMAT, NN_FORMAT_VERSION)
         if card.get("kind") == "pointing-cones":
             from .cone_nearest import ConeNearestNeighbourModel
             return ConeNearestNeighbourModel.from_card(d, card, path)

@@ -1,0 +1,98 @@
+"""A table of solved full-attitude problems that says which ones have no bang-bang optimum
+(a singular arc), and holds the switching sequences of those answers.
+
+About one random per-axis slew in eight has a singular arc: no list of switch times is an
+extremal, so the learned guess cannot converge, and ``auto`` answers with a bang-bang slew whose
+switch times are optimised (``solvers.switch_time_opt``), seeded by collocation. Near problems
+have near sequences, so where the learned guess fails and most of the ``k`` nearest tabled
+problems are singular, ``auto`` first optimises the switch times of the nearest singular
+answers' sequences (``switch_time_opt.bang_bang_from_sequences``), with no collocation.
+
+File format (``.npz``): ``X`` (n, N_FEATURES) float32, the canonical features of every
+tabled problem (singular or not); ``singular`` (n,) bool; for the m singular rows, in their
+order: ``T`` (m,) nondimensional final time, ``T_eig`` (m,), ``U`` (m, 3) first-arc signs and
+``S`` (m, 3, K) nondimensional switch times per canonical axis (NaN-padded); ``card`` (JSON:
+``format`` "slewopt-singular", ``format_version``, ``k`` neighbours of the vote, ``vote`` (the
+share of singular neighbours that sends a problem to the table route), ``n_sequences``
+(neighbours' sequences tried), ``tf_rel_tol`` (the relative ``tf_tol`` reported, measured on
+held-out problems), ``domain`` and ``training``).
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from slew_env import SlewProblem
+from .features import canonical_form, solution_from_canonical, unsupported_reason
+from .model import ModelFileError, read_table
+from .nearest import table_coverage
+
+SINGULAR_FORMAT = "slewopt-singular"
+SINGULAR_FORMAT_VERSION = 1
+
+
+class SingularTable:
+    def __init__(self, X, singular, T, T_eig, U, S, k=5, vote=0.6, n_sequences=3, tf_rel_tol=float("nan"),
+                 domain=None, training=None, name="singular table"):
+        self.X = np.asarray(X, float)
+        self.singular = np.asarray(singular, bool)
+        if self.X.ndim != 2 or self.X.shape[0] != self.singular.shape[0] or not self.singular.any():
+            raise ValueError("X, singular: the table needs one flag per row and at least one singular row")
+        self.T, self.T_eig = np.asarray(T, float), np.asarray(T_eig, float)
+        self.U, self.S = np.asarray(U, float), np.asarray(S, float)
+        m = int(self.singular.sum())
+        if self.T.shape != (m,) or self.U.shape != (m, 3) or self.S.shape[:2] != (m, 3):
+            raise ValueError(f"T, U, S: expected one row per singular problem ({m})")
+        self.k, self.vote, self.n_sequences = int(k), float(vote), int(n_sequences)
+        self.tf_rel_tol = float(tf_rel_tol)
+        self.domain, self.training, self.name = domain or {}, training or {}, name
+        self.scale = np.maximum(self.X.std(axis=0), 1e-3)
+        self.tree = cKDTree(self.X / self.scale)
+        self.tree_singular = cKDTree(self.X[self.singular] / self.scale)
+
+    @classmethod
+    def load(cls, path):
+        path = os.fspath(path)
+        d, card = read_table(path, SINGULAR_FORMAT, SINGULAR_FORMAT_VERSION)
+        try:
+            return cls(d["X"], d["singular"], d["T"], d["T_eig"], d["U"], d["S"], k=card["k"], vote=card["vote"],
+                       n_sequences=card["n_sequences"], tf_rel_tol=card.get("tf_rel_tol", float("nan")),
+                       domain=card.get("domain"), training=card.get("training"), name=card.get("name", "singular table"))
+        except (KeyError, ValueError) as e:
+            raise ModelFileError(f"model: {path} is not a usable singular table ({e})") from None
+
+    def save(self, path):
+        card = {"format": SINGULAR_FORMAT, "format_version": SINGULAR_FORMAT_VERSION, "k": self.k, "vote": self.vote,
+                "n_sequences": self.n_sequences, "tf_rel_tol": self.tf_rel_tol, "domain": self.domain,
+                "training": self.training, "name": self.name}
+        np.savez_compressed(path, X=self.X.astype(np.float32), singular=self.singular, T=self.T, T_eig=self.T_eig,
+                            U=self.U.astype(np.int8), S=self.S.astype(np.float32), card=np.array(json.dumps(card)))
+
+    def covers(self, problem):
+        return table_coverage(SlewProblem.from_dict(problem), unsupported_reason)
+
+    def query(self, problem):
+        """``(share, sequences)``: the share of singular problems among the ``k`` nearest tabled
+        ones, and the ``n_sequences`` nearest singular answers' sequences mapped to
+        ``problem``: ``(u_first, switch_times, tf)`` in its units, ``tf`` rescaled by the ratio
+        of eigenaxis times (``ValueError`` if the table does not cover ``problem``)."""
+        problem = SlewProblem.from_dict(problem)
+        why = self.covers(problem)
+        if why:
+            raise ValueError(f"problem not covered by {self.name}: {why}")
+        cf = canonical_form(problem)
+        x = cf.x / self.scale
+        _, idx = self.tree.query(x, k=min(self.k, self.X.shape[0]))
+        share = float(np.mean(self.singular[np.atleast_1d(idx)]))
+        _, sidx = self.tree_singular.query(x, k=min(self.n_sequences, self.T.shape[0]))
+        out = []
+        for j in np.atleast_1d(sidx):
+            T = self.T[j] * cf.T_eig / self.T_eig[j]
+            ratio = T / self.T[j]
+            times = [self.S[j, i][np.isfinite(self.S[j, i])] * ratio for i in range(3)]
+            _, tf, sw, uf = solution_from_canonical(problem, cf, np.zeros(6), T, times, self.U[j])
+            out.append((uf, sw, tf))
+        return share, out

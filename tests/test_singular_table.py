@@ -1,0 +1,166 @@
+"""The singular table: which problems have a singular arc, and auto's route through the near
+singular answers' switching sequences (no collocation)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+import solvers.warmstart as warmstart
+from slew_env import SlewProblem
+from solvers import solve
+from solvers.switch_time_opt import bang_bang_from_sequences
+from solvers.warmstart import ModelFileError
+from solvers.warmstart.singular_table import SingularTable
+from training.warmstart.singular_table import build, main
+
+from test_switch_time_opt import SINGULAR, _replay
+
+DATA = os.path.join(os.path.dirname(__file__), "data", "full-attitude-small.jsonl")
+EXAMPLES = os.path.join(os.path.dirname(__file__), os.pardir, "examples")
+# SINGULAR's answer by the collocation route (a bang-bang slew of optimised switch times)
+SINGULAR_TF = 1.67520601
+
+
+@pytest.fixture(scope="module")
+def singular_answer():
+    s = solve(SINGULAR, warm_start=None)
+    assert s.method == "switch-time" and s.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
+    return s
+
+
+def _dataset(path, singular_answer, with_singular=True):
+    lines = open(DATA).read().splitlines()
+    recs = [json.loads(l) for l in lines[1:]]
+    exact = [r for r in recs if r.get("method") == "indirect"][:12]
+    for r in exact:
+        r["exact"] = True
+    out = [lines[0]] + [json.dumps(r) for r in exact]
+    if with_singular:
+        d = singular_answer.to_dict()
+        rec = {"index": 10_000, "problem": SINGULAR.to_dict(), "success": True, "exact": False,
+               "method": "switch-time", "tf": d["tf"], "switch_times": d["switch_times"], "u_first": d["u_first"]}
+        out.append(json.dumps(rec))
+    # a collocation answer is left out
+    out.append(json.dumps({"index": 10_001, "problem": SINGULAR.to_dict(), "success": True, "exact": False,
+                           "method": "collocation", "tf": 1.7, "switch_times": [[], [], []], "u_first": [1, 1, 1]}))
+    path.write_text("\n".join(out) + "\n")
+    return str(path)
+
+
+def _solve_with_table(path, monkeypatch):
+    """``solve(SINGULAR)`` with the table file ``path`` in place of the shipped one."""
+    monkeypatch.setattr(warmstart, "DEFAULT_SINGULAR_TABLE_FILE", str(path))
+    warmstart.default_singular_table.cache_clear()
+    try:
+        return solve(SINGULAR)
+    finally:
+        warmstart.default_singular_table.cache_clear()
+
+
+def test_table_builds_saves_loads_and_maps_the_sequence_back(tmp_path, singular_answer):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    t = build([data], k=3, vote=0.3, n_sequences=2, tf_rel_tol=1e-4)
+    assert t.training["singular"] == 1 and t.training["exact"] == 12 and t.training["left_out"] >= 1
+    t.save(tmp_path / "t.npz")
+    t2 = SingularTable.load(tmp_path / "t.npz")
+    assert t2.vote == 0.3 and t2.k == 3 and t2.tf_rel_tol == 1e-4 and t2.singular.sum() == 1
+    share, seqs = t2.query(SINGULAR)
+    # the problem itself is its own nearest neighbour: 1 singular in its 3 nearest, and its own
+    # sequence comes back in its own axes and units (float32 storage)
+    assert share == pytest.approx(1 / 3) and len(seqs) == 1
+    uf, sw, tf = seqs[0]
+    np.testing.assert_array_equal(uf, singular_answer.u_first)
+    assert tf == pytest.approx(singular_answer.tf, rel=1e-12)
+    for a in range(3):
+        np.testing.assert_allclose(sw[a], singular_answer.switch_times[a], rtol=1e-6, atol=1e-6)
+
+
+def test_bang_bang_from_a_near_sequence_reaches_the_same_answer(singular_answer):
+    s = singular_answer
+    # the answer's own sequence, with its instants moved by 1 % of tf
+    rng = np.random.default_rng(1)
+    sw = [np.sort(np.clip(a + 0.01 * s.tf * rng.standard_normal(a.size), 0, s.tf)) for a in s.switch_times]
+    ans, kkt = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0, tf_rel_tol=1e-4)
+    assert ans is not None and ans.method == "switch-time" and not ans.exact
+    assert ans.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
+    assert max(_replay(SINGULAR, ans.switch_times, ans.u_first, ans.tf)) < 1e-9
+    assert ans.tf_tol == pytest.approx(1e-4 * ans.tf) and "not compared with collocation" in ans.message
+    # a singular problem's sequence is not stationary after 60 iterations: no KKT guess
+    assert kkt is None
+    # a bang-bang optimum's own sequence is: its KKT costates come back for the exact solver
+    r3 = SlewProblem.from_dict(json.load(open(os.path.join(EXAMPLES, "r3_seed_report_per_axis.json"))))
+    e = solve(r3, warm_start=None)
+    sw3 = [a * 1.01 for a in e.switch_times]
+    ans3, kkt3 = bang_bang_from_sequences(r3, [(e.u_first, sw3, 1.01 * e.tf)], time_budget=2.0)
+    assert ans3.tf == pytest.approx(e.tf, rel=1e-9) and kkt3 is not None
+    assert kkt3.source == "switch-time optimisation"
+    assert solve(r3, guess=kkt3, method="indirect", warm_start=None).tf == pytest.approx(e.tf, rel=1e-10)
+    # no tolerance measured: none claimed
+    ans2, _ = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0)
+    assert np.isnan(ans2.tf_tol)
+    # what it does not cover
+    assert bang_bang_from_sequences(SINGULAR.replace(torque_norm=2.0), [(s.u_first, sw, s.tf)]) == (None, None)
+
+
+def test_auto_takes_the_table_route_when_the_learned_guess_fails(tmp_path, singular_answer, monkeypatch):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    build([data], k=1, vote=1.0, n_sequences=1, tf_rel_tol=1e-4).save(tmp_path / "t.npz")
+    s = _solve_with_table(tmp_path / "t.npz", monkeypatch)
+    assert s.success and s.method == "switch-time" and not s.exact
+    assert s.warm_start["singular_table"]["used"] and s.warm_start["singular_table"]["share"] == 1.0
+    assert "singular table" in s.route and "collocation" not in s.route.split("→", 2)[-1]
+    assert s.tf == pytest.approx(SINGULAR_TF, rel=1e-6) and s.tf < s.baseline_tf
+    assert max(_replay(SINGULAR, s.switch_times, s.u_first, s.tf)) < 1e-9
+    # no table route without the default model, nor with the table saying "not singular"
+    s2 = solve(SINGULAR, warm_start=None)
+    assert "singular table" not in s2.route
+
+
+def test_a_table_that_votes_no_leaves_the_collocation_route(tmp_path, singular_answer, monkeypatch):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    build([data], k=3, vote=0.9, n_sequences=1).save(tmp_path / "t.npz")
+    s = _solve_with_table(tmp_path / "t.npz", monkeypatch)
+    assert s.success and s.warm_start["singular_table"]["used"] is False
+    assert "singular table" not in s.route and "collocation" in s.route
+
+
+def test_a_damaged_table_is_recorded_and_the_solve_goes_on(tmp_path, monkeypatch):
+    bad = tmp_path / "t.npz"
+    bad.write_bytes(b"not an npz file")
+    with pytest.raises(ModelFileError):
+        SingularTable.load(bad)
+    s = _solve_with_table(bad, monkeypatch)
+    assert s.success and "error" in s.warm_start["singular_table"]
+
+
+def test_builder_refuses_data_without_singular_answers(tmp_path, singular_answer, capsys):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer, with_singular=False)
+    assert main(["--data", data, "--out", str(tmp_path / "t.npz")]) == 2
+    assert "no switch-time (singular) records" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--data", data, "--out", str(tmp_path / "t.npz"), "--vote", "0"])
+    with pytest.raises(ValueError, match="not covered"):
+        build([_dataset(tmp_path / "e.jsonl", singular_answer)]).query(SINGULAR.replace(rate_max=1.0))
+
+
+def test_the_shipped_table_answers_a_held_out_singular_problem(singular_answer):
+    t = warmstart.default_singular_table()
+    assert t is not None and t.training["singular"] > 1000 and t.tf_rel_tol == 5e-4
+    share, seqs = t.query(SINGULAR)
+    assert share >= t.vote and len(seqs) == t.n_sequences
+    s = solve(SINGULAR)
+    assert s.success and s.method == "switch-time" and s.warm_start["singular_table"]["used"]
+    assert s.route.startswith("learned guess's structured candidates failed") and "singular table" in s.route
+    assert "collocation" not in s.route.split("singular table", 1)[1]
+    # as fast as the collocation route's answer to within the reported tolerance, exactly feasible
+    assert SINGULAR_TF * (1 - 1e-7) <= s.tf <= SINGULAR_TF * (1 + 5e-4)
+    assert s.tf_tol == pytest.approx(5e-4 * s.tf) and s.tf < s.baseline_tf
+    assert max(_replay(SINGULAR, s.switch_times, s.u_first, s.tf)) < 1e-9
+    assert s.verification["eigenaxis_baseline"]["passed"] and s.verification["replay"]["passed"]
+    json.dumps(s.to_dict())
+    # turned off: the collocation route
+    s2 = solve(SINGULAR, singular_table=False)
+    assert "singular table" not in s2.route and s2.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
+    with pytest.raises(ValueError, match="singular_table"):
+        solve(SINGULAR, singular_table="yes")
