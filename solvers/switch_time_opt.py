@@ -366,9 +366,11 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     optimised in turn (``max_iter`` SLSQP iterations) until the time is spent, and the fastest
     verified one is the answer (``first``: the first verified one). There is no collocation
     answer to compare with, so ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the
-    caller on held-out problems) or NaN. The KKT guess is given only when the answer is a KKT
-    point of its sequence (residual at most ``KKT_TOL``): after a few iterations on a singular
-    problem it is not, and the exact solver from it would fail, at tens of milliseconds."""
+    caller on held-out problems) or NaN. ``costate0`` is the KKT multipliers' costates, an
+    estimate where the iterate is not a KKT point (the dense costates are then NaN). The KKT
+    guess is given only when the answer is a KKT point of its sequence (residual at most
+    ``KKT_TOL``): after a few iterations on a singular problem it is not, and the exact solver
+    from it would fail, at tens of milliseconds."""
     t0 = time.perf_counter()
     if problem.cones or problem.qf is None or not math.isinf(problem.torque_norm):
         return None, None
@@ -412,7 +414,7 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
     answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison,
                                 lambda att: max(tf * tf_rel_tol, tf * 10.0 * att) if tf_rel_tol == tf_rel_tol
-                                else math.nan, np.full(7, np.nan), t0)
+                                else math.nan, None, t0)
     if answer is not None:
         answer.guess, answer.n_candidates = source, tried
     return answer, (kkt_guess if r.kkt <= KKT_TOL else None)
@@ -422,7 +424,8 @@ def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costat
     """The verified ``SlewSolution`` of an optimised sequence ``r`` and its KKT guess, or
     ``(None, None)`` if a check fails: boundary errors at the end of the DOP853 arcs, an RK4
     replay of the switch times, the rate limit. ``tf_tol_of(attitude/rate miss)`` gives its
-    ``tf_tol``; ``fallback_costate0`` is reported when the KKT multipliers give no costates."""
+    ``tf_tol``; ``fallback_costate0`` is reported when the iterate is not a KKT point (``None``:
+    the multipliers' costates all the same, an estimate, or NaN when they give no normal costate)."""
     from .guesses import Guess
     from .solution import STATUS_SUCCESS, SlewSolution
     from .verify import (DEFAULT_TOLS, boundary_checks, end_error, failure_text, make_check, rate_limit_check,
@@ -467,7 +470,8 @@ def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costat
         costate0 = kkt_costate0
     else:
         costate = np.full((t.shape[0], 7), np.nan)
-        costate0 = fallback_costate0
+        costate0 = fallback_costate0 if fallback_costate0 is not None else (
+            kkt_costate0 if kkt_costate0 is not None else np.full(7, np.nan))
     n = int(ax.shape[0])
     message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
                f"takes {tf:.9g}, {comparison}.")

@@ -158,7 +158,11 @@ def test_the_shipped_table_answers_a_held_out_singular_problem(singular_answer):
     assert s.tf_tol == pytest.approx(5e-4 * s.tf) and s.tf < s.baseline_tf
     assert max(_replay(SINGULAR, s.switch_times, s.u_first, s.tf)) < 1e-9
     assert s.verification["eigenaxis_baseline"]["passed"] and s.verification["replay"]["passed"]
-    json.dumps(s.to_dict())
+    # costate0: the KKT multipliers' estimate (the iterate is not stationary: no dense costates);
+    # a dataset keeps the answer as a verified record
+    assert np.all(np.isfinite(s.costate0)) and np.all(np.isnan(s.costate))
+    from training.generate import _verified
+    assert _verified(json.loads(json.dumps(s.to_dict()))) is None
     # turned off: the collocation route
     s2 = solve(SINGULAR, singular_table=False)
     assert "singular table" not in s2.route and s2.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
