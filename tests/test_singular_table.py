@@ -168,3 +168,20 @@ def test_the_shipped_table_answers_a_held_out_singular_problem(singular_answer):
     assert "singular table" not in s2.route and s2.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
     with pytest.raises(ValueError, match="singular_table"):
         solve(SINGULAR, singular_table="yes")
+
+
+def test_evaluate_reports_the_model_with_the_table_next_to_the_model_alone():
+    from training.warmstart import evaluate as ev
+    ev._init(None, None)
+    # held-out problem 32 of the evaluation seed is SINGULAR
+    rows = ev._run_one(("full-attitude", 20261122, 32, ("learned", "learned+table"), 2.0, 1.0))
+    learned, table = rows
+    assert learned["guess"] == "learned" and learned["success"] is False
+    assert table["guess"] == "learned+table" and table["success"] and table["exact"] is False
+    assert table["won"].startswith("the singular table") and table["wall_time_s"] > learned["wall_time_s"]
+    assert table["tf"] == pytest.approx(SINGULAR_TF, rel=5e-4)
+    s = ev.summarise(rows)
+    assert s["learned"]["converged"] == 0 and s["learned+table"]["converged"] == 1 and s["learned+table"]["exact"] == 0
+    s.update(family="full-attitude", n=1, seed=20261122, baseline_n=0, model="default", workers=1,
+             inference_s_median=1e-4)
+    assert "| learned+table | 1 | 1 (100.0 % verified, 0 exact)" in ev.markdown(s)

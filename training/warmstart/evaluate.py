@@ -6,6 +6,11 @@ verified extremal, the Newton iterations, the wall time and the final time:
 
 * ``learned`` — the model (its candidates: predicted structure, propagated structure,
   costates alone);
+* ``learned+table`` — the shipped model (full-attitude family), then, where it fails, the
+  shipped singular table (``solvers.warmstart.singular_table``: the near singular answers'
+  sequences, switch times optimised), as ``solve()`` uses it; converged = a verified answer,
+  an exact extremal or a switch-time slew (counted apart), still with no collocation or
+  classical fallback;
 * ``nearest-neighbour`` — the solutions of the k nearest problems of the training data
   (the data-driven baseline), built from the same dataset files;
 * ``eigenaxis`` — the analytic eigenaxis costates with the smoothing continuation;
@@ -31,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-GUESSES = ("learned", "nearest-neighbour", "eigenaxis", "random", "collocation", "auto")
+GUESSES = ("learned", "learned+table", "nearest-neighbour", "eigenaxis", "random", "collocation", "auto")
 _W = {}
 
 
@@ -65,6 +70,9 @@ def _run_one(args):
     out = []
     for name in guesses:
         t0 = time.perf_counter()
+        if name == "learned+table":
+            out.append(_with_table(prob, out))
+            continue
         try:
             if name in ("learned", "nearest-neighbour"):
                 model = _W["model"] if name == "learned" else _W["nn"]
@@ -102,6 +110,24 @@ def _run_one(args):
         except ValueError as e:
             out.append({"index": index, "guess": name, "covered": False, "reason": str(e)[:200]})
     return out
+
+
+def _with_table(prob, out):
+    """The ``learned+table`` record: the ``learned`` record of this problem (run just before)
+    if it converged, else the singular table's route after it, its time added."""
+    from solvers.api import _singular_table_route
+    learned = next(r for r in out if r["guess"] == "learned")
+    rec = dict(learned, guess="learned+table")
+    if not learned.get("covered") or learned.get("success"):
+        return rec
+    t0 = time.perf_counter()
+    info = {}
+    sol = _singular_table_route(prob, {}, info)
+    rec["wall_time_s"] = learned["wall_time_s"] + time.perf_counter() - t0
+    if sol is not None:
+        rec.update(success=True, exact=bool(sol.exact), tf=float(sol.tf), nit=learned["nit"] + int(sol.nit),
+                   won=sol.guess, message="")
+    return rec
 
 
 def inference_time(model, family, seed, n=200):
@@ -169,8 +195,11 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"), family=family)
     t_inference = inference_time(model, family, seed)   # before the pool: a quiet process
     jobs = []
+    # the singular table goes with the shipped full-attitude model
+    table = (family == "full-attitude" and model_path in (None, "", "default")
+             and warmstart.default_singular_table() is not None)
     for i in range(n):
-        g = ["learned"] + (["nearest-neighbour"] if nn_path else [])
+        g = ["learned"] + (["learned+table"] if table else []) + (["nearest-neighbour"] if nn_path else [])
         if i < baseline_n:
             # with cones the classical guesses do not apply; the model-free solve() is the
             # reference (its exact answers set the best final time)
@@ -269,7 +298,7 @@ def markdown(s) -> str:
         conv = f"{r['converged']} ({100 * r['rate']:.1f} %)"
         if g == "collocation":
             conv = f"{r['converged']} ({100 * r['rate']:.1f} %, approximate)"
-        elif g == "auto":
+        elif g in ("auto", "learned+table"):
             conv = f"{r['converged']} ({100 * r['rate']:.1f} % verified, {r['exact']} exact)"
         nit = f"{r['nit_median']:.0f} / {r['nit_mean']:.1f}" if g != "collocation" else "–"
         gap = f"{r['gap_median']:.2e} / {r['gap_p95']:.2e}" if r['gap_median'] == r['gap_median'] else "–"
