@@ -360,24 +360,26 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
 
 def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
                              max_iter=SLSQP_ITERATIONS, first=False):
-    """``(answer, kkt_guess)`` like ``bang_bang_answer``, from given switching sequences instead
-    of a collocation answer: ``sequences`` holds ``(u_first, switch_times, tf)`` in the
-    problem's units (per-axis lists of instants, for instance a near problem's answer); each is
-    optimised in turn (``max_iter`` SLSQP iterations) until the time is spent, and the fastest
-    verified one is the answer (``first``: the first verified one). There is no collocation
-    answer to compare with, so ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the
-    caller on held-out problems) or NaN. ``costate0`` is the KKT multipliers' costates, an
-    estimate where the iterate is not a KKT point (the dense costates are then NaN). The KKT
-    guess is given only when the answer is a KKT point of its sequence (residual at most
-    ``KKT_TOL``): after a few iterations on a singular problem it is not, and the exact solver
-    from it would fail, at tens of milliseconds."""
+    """``(answer, kkt_guess, (nit, nfev))`` like ``bang_bang_answer``, from given switching
+    sequences instead of a collocation answer: ``sequences`` holds ``(u_first, switch_times,
+    tf)`` in the problem's units (per-axis lists of instants, for instance a near problem's
+    answer). Each is optimised in turn (``max_iter`` SLSQP iterations) and verified, until the
+    time is spent; the fastest verified answer is kept (``first``: the first one). ``(nit,
+    nfev)`` counts the work on all of them. There is no collocation answer to compare with, so
+    ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the caller on held-out problems)
+    or NaN. ``costate0`` is the KKT multipliers' costates, an estimate where the iterate is not a
+    KKT point (the dense costates are then NaN). The KKT guess is given only when the answer is
+    a KKT point of its sequence (residual at most ``KKT_TOL``): after a few iterations on a
+    singular problem it is not, and the exact solver from it would fail, at tens of
+    milliseconds. ``(None, None, (nit, nfev))`` when nothing is verified or the problem is not a
+    full-attitude, per-axis problem without cones."""
     t0 = time.perf_counter()
     if problem.cones or problem.qf is None or not math.isinf(problem.torque_norm):
-        return None, None
+        return None, None, (0, 0)
     bvp = AttitudeBVP(problem)
     tau = bvp.tau
     best = None
-    tried = 0
+    tried = nit = nfev = 0
     for u_first, switch_times, tf in sequences:
         left = time_budget - (time.perf_counter() - t0)
         if left <= 0.0 and tried:
@@ -386,38 +388,44 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
         signs0 = np.where(np.asarray(u_first, float) < 0, -1.0, 1.0)
         axes = np.array([a for a in range(3) for _ in switch_times[a]], dtype=np.int64)
         times = np.array([float(x) for a in range(3) for x in switch_times[a]]) / tau
-        o = np.argsort(times, kind="stable")
         # at least the 6 boundary conditions' worth of unknowns: a pulse pair in the middle
-        # of each axis until there are (as ``sequence_from_samples`` does)
+        # of an axis, round robin, until there are (as ``sequence_from_samples`` does)
         extra_axes, extra_times, a = [], [], 0
         while axes.size + len(extra_axes) + 1 < 7:
             extra_axes += [a % 3, a % 3]
             extra_times += [0.5 * tf / tau] * 2
             a += 1
-        axes = np.concatenate([axes[o], np.array(extra_axes, dtype=np.int64)])
-        times = np.concatenate([times[o], extra_times])
+        axes = np.concatenate([axes, np.array(extra_axes, dtype=np.int64)])
+        times = np.concatenate([times, extra_times])
         o = np.argsort(times, kind="stable")
-        ri = optimise_switch_times(problem, signs0, axes[o], times[o], tf / tau, time_budget=max(left, 0.01),
-                                   max_iter=max_iter, bvp=bvp)
-        if ri.success and (best is None or ri.T < best[0].T):
-            best = (ri, tried)
-            if first:
-                break
+        r = optimise_switch_times(problem, signs0, axes[o], times[o], tf / tau, time_budget=max(left, 0.01),
+                                  max_iter=max_iter, bvp=bvp)
+        nit += r.nit
+        nfev += r.nfev
+        if not r.success or (best is not None and not r.T < best[0].T):
+            continue
+        T = r.T * tau
+        n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
+        how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
+        route = (f"bang-bang switch-time optimisation of the sequence of {source} {tried} ({n} switches, {how}; "
+                 f"KKT residual {r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {T:.9g}")
+        comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
+        answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison,
+                                    lambda att, T=T: max(T * tf_rel_tol, T * 10.0 * att) if tf_rel_tol == tf_rel_tol
+                                    else math.nan, None, t0)
+        if answer is None:
+            continue
+        best = (r, answer, kkt_guess if r.kkt <= KKT_TOL else None)
+        if first:
+            break
     if best is None:
-        return None, None
-    r, k = best
-    tf = r.T * tau
-    n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
-    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
-    route = (f"bang-bang switch-time optimisation of the sequence of {source} {k} of {tried} ({n} switches, {how}; "
-             f"KKT residual {r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g}")
-    comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
-    answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison,
-                                lambda att: max(tf * tf_rel_tol, tf * 10.0 * att) if tf_rel_tol == tf_rel_tol
-                                else math.nan, None, t0)
-    if answer is not None:
-        answer.guess, answer.n_candidates = source, tried
-    return answer, (kkt_guess if r.kkt <= KKT_TOL else None)
+        return None, None, (nit, nfev)
+    r, answer, kkt_guess = best
+    answer.route += f"; {tried} sequence(s) tried"
+    answer.guess, answer.n_candidates = source, tried
+    answer.nit, answer.nfev = nit, nfev
+    answer.wall_time = time.perf_counter() - t0
+    return answer, kkt_guess, (nit, nfev)
 
 
 def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costate0, t0):

@@ -81,7 +81,9 @@ def test_bang_bang_from_a_near_sequence_reaches_the_same_answer(singular_answer)
     # the answer's own sequence, with its instants moved by 1 % of tf
     rng = np.random.default_rng(1)
     sw = [np.sort(np.clip(a + 0.01 * s.tf * rng.standard_normal(a.size), 0, s.tf)) for a in s.switch_times]
-    ans, kkt = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0, tf_rel_tol=1e-4)
+    ans, kkt, (nit, nfev) = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0,
+                                                     tf_rel_tol=1e-4)
+    assert ans.nit == nit > 0 and ans.nfev == nfev > 0
     assert ans is not None and ans.method == "switch-time" and not ans.exact
     assert ans.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
     assert max(_replay(SINGULAR, ans.switch_times, ans.u_first, ans.tf)) < 1e-9
@@ -92,15 +94,15 @@ def test_bang_bang_from_a_near_sequence_reaches_the_same_answer(singular_answer)
     r3 = SlewProblem.from_dict(json.load(open(os.path.join(EXAMPLES, "r3_seed_report_per_axis.json"))))
     e = solve(r3, warm_start=None)
     sw3 = [a * 1.01 for a in e.switch_times]
-    ans3, kkt3 = bang_bang_from_sequences(r3, [(e.u_first, sw3, 1.01 * e.tf)], time_budget=2.0)
+    ans3, kkt3, _ = bang_bang_from_sequences(r3, [(e.u_first, sw3, 1.01 * e.tf)], time_budget=2.0)
     assert ans3.tf == pytest.approx(e.tf, rel=1e-9) and kkt3 is not None
     assert kkt3.source == "switch-time optimisation"
     assert solve(r3, guess=kkt3, method="indirect", warm_start=None).tf == pytest.approx(e.tf, rel=1e-10)
     # no tolerance measured: none claimed
-    ans2, _ = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0)
+    ans2, _, _ = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0)
     assert np.isnan(ans2.tf_tol)
     # what it does not cover
-    assert bang_bang_from_sequences(SINGULAR.replace(torque_norm=2.0), [(s.u_first, sw, s.tf)]) == (None, None)
+    assert bang_bang_from_sequences(SINGULAR.replace(torque_norm=2.0), [(s.u_first, sw, s.tf)]) == (None, None, (0, 0))
 
 
 def test_auto_takes_the_table_route_when_the_learned_guess_fails(tmp_path, singular_answer, monkeypatch):
@@ -136,10 +138,10 @@ def test_a_damaged_table_is_recorded_and_the_solve_goes_on(tmp_path, monkeypatch
 
 def test_builder_refuses_data_without_singular_answers(tmp_path, singular_answer, capsys):
     data = _dataset(tmp_path / "d.jsonl", singular_answer, with_singular=False)
-    assert main(["--data", data, "--out", str(tmp_path / "t.npz")]) == 2
+    assert main(["--data", data, "--out", str(tmp_path / "t.npz"), "--tf-rel-tol", "5e-4"]) == 2
     assert "no switch-time (singular) records" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        main(["--data", data, "--out", str(tmp_path / "t.npz"), "--vote", "0"])
+        main(["--data", data, "--out", str(tmp_path / "t.npz"), "--vote", "0", "--tf-rel-tol", "5e-4"])
     with pytest.raises(ValueError, match="not covered"):
         build([_dataset(tmp_path / "e.jsonl", singular_answer)]).query(SINGULAR.replace(rate_max=1.0))
 
@@ -185,3 +187,38 @@ def test_evaluate_reports_the_model_with_the_table_next_to_the_model_alone():
     s.update(family="full-attitude", n=1, seed=20261122, baseline_n=0, model="default", workers=1,
              inference_s_median=1e-4)
     assert "| learned+table | 1 | 1 (100.0 % verified, 0 exact)" in ev.markdown(s)
+
+
+@pytest.mark.parametrize("j_scale, u_scale", [(100.0, 0.25), (0.01, 1.0)])
+def test_the_table_route_works_in_any_units(j_scale, u_scale):
+    # the same slew with scaled inertia and torque: time scales by sqrt(j/u); the eigenaxis
+    # check must compare times in the problem's own units (it did not, found by an audit)
+    p = SINGULAR.replace(inertia=j_scale * np.asarray(SINGULAR.inertia), torque_max=u_scale * np.asarray(SINGULAR.torque_max))
+    tau = (j_scale / u_scale) ** 0.5
+    s = solve(p)
+    assert s.success and s.warm_start["singular_table"]["used"] and s.method == "switch-time"
+    assert s.tf == pytest.approx(tau * SINGULAR_TF, rel=5e-4)
+    eig = solve(p, method="eigenaxis")
+    assert s.tf < eig.tf and s.baseline_tf <= eig.tf * (1 + 1e-4) and s.baseline_tf == pytest.approx(eig.tf, rel=1e-3)
+    assert max(_replay(p, s.switch_times, s.u_first, s.tf)) < 1e-9 * max(1.0, tau)
+
+
+@pytest.mark.parametrize("change", ["k0", "vote0", "t_eig_short"])
+def test_a_loadable_but_inconsistent_table_is_refused_and_the_solve_goes_on(tmp_path, singular_answer, monkeypatch,
+                                                                             change):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    build([data], k=1, vote=1.0, n_sequences=1, tf_rel_tol=1e-4).save(tmp_path / "t.npz")
+    d = dict(np.load(tmp_path / "t.npz"))
+    card = json.loads(str(d["card"]))
+    if change == "k0":
+        card["k"] = 0
+    elif change == "vote0":
+        card["vote"] = 0.0
+    else:
+        d["T_eig"] = d["T_eig"][:0]
+    d["card"] = np.array(json.dumps(card))
+    np.savez(tmp_path / "bad.npz", **d)
+    with pytest.raises(ModelFileError, match="not a usable singular table"):
+        SingularTable.load(tmp_path / "bad.npz")
+    s = _solve_with_table(tmp_path / "bad.npz", monkeypatch)
+    assert s.success and "not a usable singular table" in s.warm_start["singular_table"]["error"]

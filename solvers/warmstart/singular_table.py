@@ -43,10 +43,19 @@ class SingularTable:
             raise ValueError("X, singular: the table needs one flag per row and at least one singular row")
         self.T, self.T_eig = np.asarray(T, float), np.asarray(T_eig, float)
         self.U, self.S = np.asarray(U, float), np.asarray(S, float)
+        if not np.all(np.isfinite(self.X)):
+            raise ValueError("X: the features must be finite")
         m = int(self.singular.sum())
-        if self.T.shape != (m,) or self.U.shape != (m, 3) or self.S.shape[:2] != (m, 3):
-            raise ValueError(f"T, U, S: expected one row per singular problem ({m})")
+        if (self.T.shape != (m,) or self.T_eig.shape != (m,) or self.U.shape != (m, 3) or self.S.ndim != 3
+                or self.S.shape[:2] != (m, 3)):
+            raise ValueError(f"T, T_eig, U, S: expected one row per singular problem ({m})")
+        if not (np.all(self.T > 0) and np.all(self.T_eig > 0)):
+            raise ValueError("T, T_eig: the final times must be positive")
         self.k, self.vote, self.n_sequences = int(k), float(vote), int(n_sequences)
+        if self.k < 1 or self.n_sequences < 1:
+            raise ValueError(f"k, n_sequences: need at least 1 each, got {self.k} and {self.n_sequences}")
+        if not 0.0 < self.vote <= 1.0:
+            raise ValueError(f"vote: the share of singular neighbours must be in (0, 1], got {self.vote}")
         self.tf_rel_tol = float(tf_rel_tol)
         self.domain, self.training, self.name = domain or {}, training or {}, name
         self.scale = np.maximum(self.X.std(axis=0), 1e-3)
@@ -61,7 +70,7 @@ class SingularTable:
             return cls(d["X"], d["singular"], d["T"], d["T_eig"], d["U"], d["S"], k=card["k"], vote=card["vote"],
                        n_sequences=card["n_sequences"], tf_rel_tol=card.get("tf_rel_tol", float("nan")),
                        domain=card.get("domain"), training=card.get("training"), name=card.get("name", "singular table"))
-        except (KeyError, ValueError) as e:
+        except (KeyError, ValueError, TypeError) as e:
             raise ModelFileError(f"model: {path} is not a usable singular table ({e})") from None
 
     def save(self, path):

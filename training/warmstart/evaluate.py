@@ -122,11 +122,13 @@ def _with_table(prob, out):
         return rec
     t0 = time.perf_counter()
     info = {}
-    sol = _singular_table_route(prob, {}, info)
+    sol, (nit, _) = _singular_table_route(prob, {}, info)
     rec["wall_time_s"] = learned["wall_time_s"] + time.perf_counter() - t0
     if sol is not None:
         rec.update(success=True, exact=bool(sol.exact), tf=float(sol.tf), nit=learned["nit"] + int(sol.nit),
                    won=sol.guess, message="")
+    else:
+        rec["nit"] = learned["nit"] + nit
     return rec
 
 

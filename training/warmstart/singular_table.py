@@ -1,16 +1,19 @@
 """Build the singular table (``solvers.warmstart.singular_table``) from generated datasets.
 
     python -m training.warmstart.singular_table --data FILE.jsonl [FILE.jsonl ...] \
-        --out solvers/warmstart/models/full-attitude-singular.npz [--k 5] [--vote 0.6] \
-        [--n-sequences 3] [--tf-rel-tol 3e-4]
+        --out solvers/warmstart/models/full-attitude-singular.npz --tf-rel-tol 5e-4 \
+        [--k 5] [--vote 0.6] [--n-sequences 3]
 
 Every verified record of the full-attitude family becomes a row: an exact extremal as a
 bang-bang problem, a switch-time answer (``method == "switch-time"``, the problems with a
 singular arc) as a singular one, with its switching sequence in canonical axes. Collocation
 answers (no exactly feasible bang-bang answer was found) and failures are left out. The data
 must come from a route that gives switch-time answers, ``solve()``'s ``auto`` (for instance
-``slew generate --solve-fn training.generate:solve_warm --solve-options '{"fallback": true}'``);
-a file of the warm route alone has no singular answers.
+``slew generate --solve-fn training.generate:solve_warm --solve-options '{"fallback": true,
+"singular_table": false}'``: with the table off, so that the answers come from collocation's
+sequences, not from an earlier table's); a file of the warm route alone has no singular answers.
+``--tf-rel-tol`` is the ``tf_tol`` (relative) the table's answers report: measure it on held-out
+problems against the collocation route (``singular_table=False``).
 """
 from __future__ import annotations
 
@@ -85,7 +88,7 @@ def main(argv=None):
     ap.add_argument("--vote", type=float, default=0.6,
                     help="share of singular neighbours that sends a problem to the table route (default 0.6)")
     ap.add_argument("--n-sequences", type=int, default=3, help="nearest singular sequences tried (default 3)")
-    ap.add_argument("--tf-rel-tol", type=float, default=math.nan,
+    ap.add_argument("--tf-rel-tol", type=float, required=True,
                     help="relative tf_tol the table route reports (measured on held-out problems)")
     a = ap.parse_args(argv)
     for name in ("k", "n_sequences"):
@@ -93,6 +96,8 @@ def main(argv=None):
             ap.error(f"--{name.replace('_', '-')}: must be at least 1")
     if not 0.0 < a.vote <= 1.0:
         ap.error("--vote: must be in (0, 1]")
+    if not (a.tf_rel_tol > 0.0 and math.isfinite(a.tf_rel_tol)):
+        ap.error("--tf-rel-tol: must be a positive number")
     try:
         t = build(a.data, a.k, a.vote, a.n_sequences, a.tf_rel_tol)
     except (ValueError, OSError) as e:
