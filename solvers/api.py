@@ -57,6 +57,7 @@ from .eigenaxis import eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
+from .switch_time_opt import switch_time_applies
 from .verify import DENSE_STEPS, make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
@@ -81,8 +82,8 @@ SINGULAR_KKT_BUDGET = 0.1
 # 1.8e-5 above the slew's (``eigenaxis_answer``)
 EIGENAXIS_GRID_MARGIN = 1e-3
 # SLSQP iterations on each of the nearest singular answers' sequences; the fastest verified answer
-# is kept. On the 101 held-out problems the table routes (the learned guess failed, ≥ 60 % of the
-# 5 nearest singular), against the collocation route's answer: the nearest sequence alone, 10
+# is kept. On the 101 singular held-out problems the table routes (the learned guess failed, ≥ 60 %
+# of the 5 nearest singular; runs/s13/combo.py), against the collocation route's answer: the nearest sequence alone, 10
 # iterations: tf a median 5e-6 and at most 4.3e-4 above, 13 without an answer; the best of the 3
 # nearest: a median 3e-6, at most 1.8e-4, 1 without (20 iterations: twice the time for 2e-6)
 SINGULAR_TABLE_ITERATIONS = 10
@@ -254,7 +255,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
         # structure (milliseconds) first; its continuation candidates after collocation, unless
         # collocation shows a singular arc, where they cannot converge (``_solve_auto``)
-        split = method == "auto" and _switch_time_applies(prob)
+        split = method == "auto" and switch_time_applies(prob)
         warm, info, later = _warm_start(prob, method, warm_start, options, split=split)
         if warm is not None and warm.success:
             warm.wall_time = time.perf_counter() - t0
@@ -269,7 +270,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         failed_warm = bool(info.get("covered")) and not info.get("succeeded")
         sol = None
         spent_table = (0, 0)
-        if (use_table and failed_warm and _switch_time_applies(prob) and isinstance(warm_start, str)
+        if (use_table and failed_warm and switch_time_applies(prob) and isinstance(warm_start, str)
                 and warm_start == "default"):
             t_table = time.perf_counter()
             sol, spent_table = _singular_table_route(prob, rest, info)
@@ -297,6 +298,26 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
             sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     return sol
+
+
+def _exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix) -> Optional[SlewSolution]:
+    """The exact extremal from a switch-time answer's KKT costates (``kkt_guess``), if the exact
+    solver certifies one no slower than ``bang`` within ``budget`` s (the optimum was bang-bang
+    after all), with ``bang``'s work counted and the route through it; else ``None``, with the
+    attempt's work counted in ``bang`` and its outcome in ``bang.message``."""
+    if kkt_guess is None or not budget > 0.05:
+        return None
+    ex = _solve_indirect(prob, "indirect", kkt_guess, first_verified=True, **dict(
+        options, max_candidates=1, min_candidates=1, enough=1, time_budget=budget))
+    if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):
+        ex.route = f"{prefix} → {bang.route} → exact extremal from its KKT costates: {ex.route}"
+        ex.nit += bang.nit
+        ex.nfev += bang.nfev
+        return ex
+    bang.nit += ex.nit
+    bang.nfev += ex.nfev
+    bang.message += f" The exact solver from its KKT costates: {ex.message[:200]}"
+    return None
 
 
 def _singular_table_route(prob, options, info):
@@ -343,27 +364,15 @@ def _singular_table_route(prob, options, info):
     bang.baseline_tf = baseline
     bang.verification["eigenaxis_baseline"] = make_check(bang.tf / baseline - 1.0, 0.0, True)
     prefix = f"singular table ({share:.0%} of the {table.k} nearest problems singular)"
-    if kkt_guess is not None:
-        ex = _solve_indirect(prob, "indirect", kkt_guess, first_verified=True, **dict(
-            options, max_candidates=1, min_candidates=1, enough=1, time_budget=SINGULAR_KKT_BUDGET))
-        if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):
-            ex.route = f"{prefix} → {bang.route} → exact extremal from its KKT costates: {ex.route}"
-            ex.nit += bang.nit
-            ex.nfev += bang.nfev
-            rec.update(used=True, time_s=time.perf_counter() - t0)
-            return ex, (0, 0)
-        bang.nit += ex.nit
-        bang.nfev += ex.nfev
-        bang.message += f" The exact solver from its KKT costates: {ex.message[:200]}"
+    ex = _exact_from_kkt(prob, bang, kkt_guess, options,
+                         min(SINGULAR_KKT_BUDGET, budget - (time.perf_counter() - t0)), prefix)
+    if ex is not None:
+        rec.update(used=True, time_s=time.perf_counter() - t0)
+        return ex, (0, 0)
     bang.route = f"{prefix} → {bang.route}"
     bang.wall_time = time.perf_counter() - t0
     rec.update(used=True, time_s=bang.wall_time)
     return bang, (0, 0)
-
-
-def _switch_time_applies(prob) -> bool:
-    """Full-attitude target, per-axis bound, no cones: ``auto``'s switch-time answer applies."""
-    return not prob.cones and prob.qf is not None and math.isinf(prob.torque_norm)
 
 
 def _split_continuation(g: Guess):
@@ -406,10 +415,11 @@ def _warm_start(prob, method, warm_start, options, split=False):
     if not isinstance(g, Guess):
         raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
     later = None
-    if split and not prob.cones:
+    t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", None))
+    if split:
         g, later = _split_continuation(g)
     t_guess = time.perf_counter() - t0
-    t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", t_guess))
+    t_inf = t_guess if t_inf is None else t_inf
     # a model may load the solver's compiled code first (once per process), so that its
     # candidates' time caps measure solving, not loading; not counted in the solve's time
     t_warm = model.warm_up(_warm_up_solve) if prob.cones and hasattr(model, "warm_up") else 0.0
@@ -610,13 +620,24 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
         return col
     if col.success:
         from .switch_time_opt import singular_arc_evidence
-        singular = singular_arc_evidence(prob, col) if _switch_time_applies(prob) else None
+        singular = singular_arc_evidence(prob, col) if switch_time_applies(prob) else None
+
+        def refine():
+            """The collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm problem,
+            where the λω = 0 instant makes a near guess hard to refine): ``(ref, accepted, why)``."""
+            r, ok = _refine_collocation(prob, col, options, 2,
+                                        max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            return r, ok, (r.message if not r.success else
+                           f"the refined extremal ({r.tf:.9g}) is slower than the collocation answer")
+
         ref = None
         if singular is None:
             if later is not None and budget - spent() > 0.05:
                 lg = _solve_indirect(prob, "indirect", later, first_verified=True, **dict(
                     options, max_candidates=1 + len(later.candidates), min_candidates=1, enough=1,
-                    time_budget=min(WARM_BUDGET, budget - spent())))
+                    time_budget=min(float(options.get("warm_budget", WARM_BUDGET)), budget - spent())))
+                if warm_info is not None:
+                    warm_info["deferred_result"] = "succeeded" if lg.success else "failed"
                 if lg.success:
                     if warm_info is not None:
                         warm_info.update(succeeded=True, after_collocation=True)
@@ -627,18 +648,16 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
                 # (its work is counted in the answer's nit and nfev)
                 col.nit += lg.nit
                 col.nfev += lg.nfev
-            # the collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm
-            # problem, where the λω = 0 instant makes a near guess hard to refine)
-            ref, accepted = _refine_collocation(prob, col, options, 2,
-                                                max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            ref, accepted, why = refine()
             if accepted:
                 ref.route = f"auto: collocation ({col.wall_time:.3g} s) → indirect refinement: {ref.route}"
                 ref.wall_time = spent()
                 return ref
-            why = ref.message if not ref.success else (
-                f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
+            why = f"exact refinement not certified: {why}"
         else:
-            why = f"not tried: {singular}"
+            why = f"exact refinement skipped: {singular}"
+            if later is not None and warm_info is not None:
+                warm_info["deferred_result"] = "skipped: a singular arc in collocation's control"
         # no exact extremal near it (a singular arc, mostly): the fastest bang-bang slew with
         # collocation's switching sequence reaches the target exactly, where collocation's own
         # control misses it by its discretisation error
@@ -647,39 +666,28 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
             from .switch_time_opt import bang_bang_answer
             bang, kkt_guess = bang_bang_answer(prob, col, time_budget=min(BANG_BANG_BUDGET, budget - spent()),
                                                tols=options.get("tols"))
-        if bang is not None and kkt_guess is not None and budget - spent() > 0.05:
-            # the optimised sequence's KKT costates and switch instants: if the optimum is
-            # bang-bang after all, they are its extremal's, and the exact solver certifies it
-            ex = _solve_indirect(prob, "indirect", kkt_guess, first_verified=True, **dict(
-                options, max_candidates=1, min_candidates=1, enough=1,
-                time_budget=min(BANG_BANG_BUDGET, budget - spent())))
-            if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):
-                ex.route = (f"auto: collocation ({col.wall_time:.3g} s) → {bang.route} → exact extremal from its "
-                            f"KKT costates: {ex.route}")
-                ex.nit += bang.nit + (ref.nit if ref is not None else 0)
-                ex.nfev += bang.nfev + (ref.nfev if ref is not None else 0)
+        if bang is not None:
+            if ref is not None:
+                bang.nit += ref.nit
+                bang.nfev += ref.nfev
+            prefix = f"auto: collocation ({col.wall_time:.3g} s)"
+            ex = _exact_from_kkt(prob, bang, kkt_guess, options, min(BANG_BANG_BUDGET, budget - spent()), prefix)
+            if ex is not None:
                 ex.wall_time = spent()
                 return ex
-            bang.message += f" The exact solver from its KKT costates: {ex.message[:200]}"
-        if bang is not None:
-            bang.route = (f"auto: collocation ({col.wall_time:.3g} s; exact refinement "
-                          f"{'not certified' if ref is not None else 'skipped'}: {why[:200]}) → {bang.route}")
-            bang.nit += ref.nit if ref is not None else 0
-            bang.nfev += ref.nfev if ref is not None else 0
+            bang.route = f"auto: collocation ({col.wall_time:.3g} s; {why[:250]}) → {bang.route}"
             bang.wall_time = spent()
             return bang
         if ref is None and budget - spent() > 0.05:
             # a singular arc in sight but no bang-bang answer: the exact refinement after all
-            ref, accepted = _refine_collocation(prob, col, options, 2,
-                                                max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            ref, accepted, why_ref = refine()
             if accepted:
                 ref.route = (f"auto: collocation ({col.wall_time:.3g} s; no switch-time answer) → indirect "
                              f"refinement: {ref.route}")
                 ref.wall_time = spent()
                 return ref
-            why += "; " + (ref.message if not ref.success else
-                           f"the refined extremal ({ref.tf:.9g}) is slower than the collocation answer")
-        col.route = f"auto: collocation ({col.route}; exact refinement not certified: {why[:300]})"
+            why += f"; no switch-time answer; exact refinement then not certified: {why_ref}"
+        col.route = f"auto: collocation ({col.route}; {why[:300]})"
         col.message = (f"{col.message} Collocation answer (approximate, its own tolerances); the exact "
                        f"bang-bang refinement was not certified.")
         col.wall_time = spent()

@@ -56,6 +56,11 @@ class SwitchTimeOptResult:
         return [np.sort(self.times[self.axes == i]) for i in range(3)]
 
 
+def switch_time_applies(problem) -> bool:
+    """Full-attitude target, per-axis bound, no cones: what switch-time optimisation covers."""
+    return not problem.cones and problem.qf is not None and math.isinf(problem.torque_norm)
+
+
 def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=300,
                           bvp=None) -> SwitchTimeOptResult:
     """The fastest bang-bang slew of ``problem`` (per-axis bound, full-attitude target, no cones)
@@ -253,8 +258,8 @@ SINGULAR_RUN_SAMPLES = 8
 def interior_run(t, u, umax, interior=0.98):
     """``(axis, start, length, samples)``: the longest run of consecutive samples ``t`` on which
     one axis's torque ``u`` is interior (``|u_i| < interior · umax_i``); ``length`` in the
-    units of ``t`` (from the run's first sample to the first one after it). ``axis`` is -1
-    when no sample is interior."""
+    units of ``t``, from the run's first sample to the first sample after it (to its own last
+    sample for a run that ends the record). ``axis`` is -1 when no run has a positive length."""
     t = np.asarray(t, float)
     inside = np.abs(np.asarray(u, float)) < interior * np.asarray(umax, float)[None, :]
     best = (-1, math.nan, 0.0, 0)
@@ -313,8 +318,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     collocation's estimate and the dense costates are NaN). Their switching functions show
     where the optimum leaves the bang-bang law (a singular arc)."""
     t0 = time.perf_counter()
-    if (not col.success or problem.cones or problem.qf is None or not math.isinf(problem.torque_norm)
-            or col.switch_times is None or len(col.t) < 2):
+    if not col.success or not switch_time_applies(problem) or col.switch_times is None or len(col.t) < 2:
         return None, None
     bvp = AttitudeBVP(problem)
     tau = bvp.tau
@@ -341,15 +345,12 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     col_tol = float(col.tf_tol) if col.tf_tol == col.tf_tol else 0.0
     if not r.T * tau <= col.tf + col_tol:
         return None, None
-    n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
-    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
     tf = r.T * tau
-    route = (f"bang-bang switch-time optimisation of collocation's sequence ({n} switches, {how}; KKT residual "
-             f"{r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {tf:.9g} vs collocation's {col.tf:.9g} "
-             f"± {col_tol:.1g}")
     comparison = f"against collocation's {col.tf:.9g} ± {col_tol:.1g}"
-    answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison, lambda att: max(
-        tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * att)), np.array(col.costate0, float), t0)
+    answer, kkt_guess = _answer(problem, bvp, r, tols, "collocation's sequence", f" vs collocation's {col.tf:.9g} "
+                                f"± {col_tol:.1g}", comparison, lambda att: max(
+                                    tf - (col.tf - col_tol), tf * max(1e-10, 10.0 * att)),
+                                np.array(col.costate0, float), t0)
     if answer is not None:
         answer.nit += int(col.nit)
         answer.nfev += int(col.nfev)
@@ -359,22 +360,21 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
 
 
 def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
-                             max_iter=SLSQP_ITERATIONS, first=False):
+                             max_iter=SLSQP_ITERATIONS):
     """``(answer, kkt_guess, (nit, nfev))`` like ``bang_bang_answer``, from given switching
     sequences instead of a collocation answer: ``sequences`` holds ``(u_first, switch_times,
     tf)`` in the problem's units (per-axis lists of instants, for instance a near problem's
     answer). Each is optimised in turn (``max_iter`` SLSQP iterations) and verified, until the
-    time is spent; the fastest verified answer is kept (``first``: the first one). ``(nit,
-    nfev)`` counts the work on all of them. There is no collocation answer to compare with, so
-    ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the caller on held-out problems)
-    or NaN. ``costate0`` is the KKT multipliers' costates, an estimate where the iterate is not a
-    KKT point (the dense costates are then NaN). The KKT guess is given only when the answer is
-    a KKT point of its sequence (residual at most ``KKT_TOL``): after a few iterations on a
-    singular problem it is not, and the exact solver from it would fail, at tens of
-    milliseconds. ``(None, None, (nit, nfev))`` when nothing is verified or the problem is not a
-    full-attitude, per-axis problem without cones."""
+    time is spent; the fastest verified answer is kept. ``(nit, nfev)`` counts the work on all
+    of them. There is no collocation answer to compare with, so ``tf_tol`` is ``tf_rel_tol · tf``
+    (an estimate measured by the caller on held-out problems) or NaN. ``costate0`` is the KKT
+    multipliers' costates, an estimate where the iterate is not a KKT point (the dense costates
+    are then NaN). The KKT guess is given only when the answer is a KKT point of its sequence
+    (residual at most ``KKT_TOL``): after a few iterations on a singular problem it is not, and
+    the exact solver from it would fail, at tens of milliseconds. ``(None, None, (nit, nfev))``
+    when nothing is verified or ``switch_time_applies`` is false."""
     t0 = time.perf_counter()
-    if problem.cones or problem.qf is None or not math.isinf(problem.torque_norm):
+    if not switch_time_applies(problem):
         return None, None, (0, 0)
     bvp = AttitudeBVP(problem)
     tau = bvp.tau
@@ -388,8 +388,9 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
         signs0 = np.where(np.asarray(u_first, float) < 0, -1.0, 1.0)
         axes = np.array([a for a in range(3) for _ in switch_times[a]], dtype=np.int64)
         times = np.array([float(x) for a in range(3) for x in switch_times[a]]) / tau
-        # at least the 6 boundary conditions' worth of unknowns: a pulse pair in the middle
-        # of an axis, round robin, until there are (as ``sequence_from_samples`` does)
+        # at least the 6 boundary conditions' worth of unknowns: zero-width pulse pairs at mid
+        # time, on the x, y, z axes in turn, until there are (a neighbour's singular sequence
+        # has more than enough; this is for a short bang-bang one)
         extra_axes, extra_times, a = [], [], 0
         while axes.size + len(extra_axes) + 1 < 7:
             extra_axes += [a % 3, a % 3]
@@ -405,19 +406,12 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
         if not r.success or (best is not None and not r.T < best[0].T):
             continue
         T = r.T * tau
-        n = int(sum(len(_drop_null_pulses(x, r.T)) for x in r.switch_times()))
-        how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
-        route = (f"bang-bang switch-time optimisation of the sequence of {source} {tried} ({n} switches, {how}; "
-                 f"KKT residual {r.kkt:.1e}; boundary residual {r.residual:.1e}): tf {T:.9g}")
         comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
-        answer, kkt_guess = _answer(problem, bvp, r, tols, route, comparison,
+        answer, kkt_guess = _answer(problem, bvp, r, tols, f"the sequence of {source} {tried}", "", comparison,
                                     lambda att, T=T: max(T * tf_rel_tol, T * 10.0 * att) if tf_rel_tol == tf_rel_tol
                                     else math.nan, None, t0)
-        if answer is None:
-            continue
-        best = (r, answer, kkt_guess if r.kkt <= KKT_TOL else None)
-        if first:
-            break
+        if answer is not None:
+            best = (r, answer, kkt_guess if r.kkt <= KKT_TOL else None)
     if best is None:
         return None, None, (nit, nfev)
     r, answer, kkt_guess = best
@@ -428,11 +422,12 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     return answer, kkt_guess, (nit, nfev)
 
 
-def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costate0, t0):
+def _answer(problem, bvp, r, tols, what, route_tail, comparison, tf_tol_of, fallback_costate0, t0):
     """The verified ``SlewSolution`` of an optimised sequence ``r`` and its KKT guess, or
     ``(None, None)`` if a check fails: boundary errors at the end of the DOP853 arcs, an RK4
-    replay of the switch times, the rate limit. ``tf_tol_of(attitude/rate miss)`` gives its
-    ``tf_tol``; ``fallback_costate0`` is reported when the iterate is not a KKT point (``None``:
+    replay of the switch times, the rate limit. ``what`` names the sequence in the route (with
+    ``route_tail`` after it), ``comparison`` ends the message; ``tf_tol_of(attitude/rate miss)``
+    gives its ``tf_tol``; ``fallback_costate0`` is reported when the iterate is not a KKT point (``None``:
     the multipliers' costates all the same, an estimate, or NaN when they give no normal costate)."""
     from .guesses import Guess
     from .solution import STATUS_SUCCESS, SlewSolution
@@ -481,6 +476,9 @@ def _answer(problem, bvp, r, tols, route, comparison, tf_tol_of, fallback_costat
         costate0 = fallback_costate0 if fallback_costate0 is not None else (
             kkt_costate0 if kkt_costate0 is not None else np.full(7, np.nan))
     n = int(ax.shape[0])
+    how = "a KKT point of the sequence" if r.converged else f"after {r.nit} SLSQP iterations"
+    route = (f"bang-bang switch-time optimisation of {what} ({n} switches, {how}; KKT residual {r.kkt:.1e}; "
+             f"boundary residual {r.residual:.1e}): tf {tf:.9g}{route_tail}")
     message = (f"{STATUS_MESSAGES_SUCCESS_BANG} {n} switches; it reaches the target to {max(att, rep):.1e} and "
                f"takes {tf:.9g}, {comparison}.")
     answer = SlewSolution(True, STATUS_SUCCESS, message, nit=r.nit, nfev=r.nfev,

@@ -83,8 +83,8 @@ def test_bang_bang_from_a_near_sequence_reaches_the_same_answer(singular_answer)
     sw = [np.sort(np.clip(a + 0.01 * s.tf * rng.standard_normal(a.size), 0, s.tf)) for a in s.switch_times]
     ans, kkt, (nit, nfev) = bang_bang_from_sequences(SINGULAR, [(s.u_first, sw, 1.01 * s.tf)], time_budget=2.0,
                                                      tf_rel_tol=1e-4)
-    assert ans.nit == nit > 0 and ans.nfev == nfev > 0
     assert ans is not None and ans.method == "switch-time" and not ans.exact
+    assert ans.nit == nit > 0 and ans.nfev == nfev > 0
     assert ans.tf == pytest.approx(SINGULAR_TF, rel=1e-6)
     assert max(_replay(SINGULAR, ans.switch_times, ans.u_first, ans.tf)) < 1e-9
     assert ans.tf_tol == pytest.approx(1e-4 * ans.tf) and "not compared with collocation" in ans.message
@@ -114,7 +114,7 @@ def test_auto_takes_the_table_route_when_the_learned_guess_fails(tmp_path, singu
     assert "singular table" in s.route and "collocation" not in s.route.split("→", 2)[-1]
     assert s.tf == pytest.approx(SINGULAR_TF, rel=1e-6) and s.tf < s.baseline_tf
     assert max(_replay(SINGULAR, s.switch_times, s.u_first, s.tf)) < 1e-9
-    # no table route without the default model, nor with the table saying "not singular"
+    # no table route without the default model
     s2 = solve(SINGULAR, warm_start=None)
     assert "singular table" not in s2.route
 
@@ -222,3 +222,47 @@ def test_a_loadable_but_inconsistent_table_is_refused_and_the_solve_goes_on(tmp_
         SingularTable.load(tmp_path / "bad.npz")
     s = _solve_with_table(tmp_path / "bad.npz", monkeypatch)
     assert s.success and "not a usable singular table" in s.warm_start["singular_table"]["error"]
+
+
+def test_of_several_sequences_the_fastest_verified_answer_is_kept(singular_answer):
+    s = singular_answer
+    # a poor sequence first (one switch per axis: far fewer switches than the singular arc wants),
+    # then the answer's own: both are optimised and the faster kept
+    poor = ([1.0, 1.0, 1.0], [np.array([0.5 * s.tf])] * 3, s.tf)
+    good = (s.u_first, s.switch_times, s.tf)
+    one, _, w1 = bang_bang_from_sequences(SINGULAR, [good], time_budget=2.0, max_iter=10)
+    both, _, w2 = bang_bang_from_sequences(SINGULAR, [poor, good], time_budget=2.0, max_iter=10)
+    assert both.n_candidates == 2 and both.tf == pytest.approx(one.tf, rel=1e-12)
+    assert "of table 2" in both.route and "2 sequence(s) tried" in both.route
+    assert w2[0] > w1[0] and both.nit == w2[0]
+
+
+def test_a_table_answer_that_is_a_kkt_point_goes_on_to_the_exact_extremal(tmp_path, monkeypatch):
+    # R3 has a bang-bang optimum; a table holding its answer as if singular gives a KKT point of
+    # the right sequence, and the exact solver certifies the extremal from its KKT costates
+    r3 = SlewProblem.from_dict(json.load(open(os.path.join(EXAMPLES, "r3_seed_report_per_axis.json"))))
+    e = solve(r3, warm_start=None)
+    lines = open(DATA).read().splitlines()
+    rec = {"index": 1, "problem": r3.to_dict(), "success": True, "exact": False, "method": "switch-time",
+           "tf": e.tf, "switch_times": [list(a) for a in e.switch_times], "u_first": list(e.u_first)}
+    (tmp_path / "d.jsonl").write_text(lines[0] + "\n" + json.dumps(rec) + "\n")
+    build([str(tmp_path / "d.jsonl")], k=1, vote=1.0, n_sequences=1, tf_rel_tol=1e-4).save(tmp_path / "t.npz")
+
+    class Wrong:          # a default model whose guess fails
+        name = "wrong"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            from solvers import Guess
+            return Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned")
+    monkeypatch.setattr(warmstart, "default_model", lambda: Wrong())
+    monkeypatch.setattr(warmstart, "DEFAULT_SINGULAR_TABLE_FILE", str(tmp_path / "t.npz"))
+    warmstart.default_singular_table.cache_clear()
+    try:
+        s = solve(r3)
+    finally:
+        warmstart.default_singular_table.cache_clear()
+    assert s.success and s.exact and s.tf == pytest.approx(e.tf, rel=1e-10)
+    assert s.warm_start["singular_table"]["used"] and "exact extremal from its KKT costates" in s.route

@@ -43,6 +43,17 @@ def table_coverage(problem, unsupported):
     return None
 
 
+def tabled_solution(problem, cf, T, T_eig, S, U, z):
+    """A tabled canonical solution (nondimensional ``T``, its problem's eigenaxis time ``T_eig``,
+    NaN-padded switch times ``S`` (3, K), first signs ``U``, costates ``z``) mapped to ``problem``
+    (canonical form ``cf``): ``(costate0, tf, switch_times, u_first)`` in its units, the times
+    rescaled by the ratio of eigenaxis times."""
+    T_new = T * cf.T_eig / T_eig
+    ratio = T_new / T
+    times = [S[i][np.isfinite(S[i])] * ratio for i in range(3)]
+    return solution_from_canonical(problem, cf, z, T_new, times, U)
+
+
 class NearestNeighbourModel:
     def __init__(self, X, Z, T, T_eig, U, S, k=3, domain=None, name="nearest-neighbour"):
         self.X = np.asarray(X, float)
@@ -89,10 +100,7 @@ class NearestNeighbourModel:
         idx = np.atleast_1d(idx)
         out = None
         for rank, j in enumerate(idx):
-            T = self.T[j] * cf.T_eig / self.T_eig[j]
-            ratio = T / self.T[j]
-            times = [self.S[j, i][np.isfinite(self.S[j, i])] * ratio for i in range(3)]
-            c0, tf, sw, uf = solution_from_canonical(problem, cf, self.Z[j], T, times, self.U[j])
+            c0, tf, sw, uf = tabled_solution(problem, cf, self.T[j], self.T_eig[j], self.S[j], self.U[j], self.Z[j])
             g = Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]")
             if out is None:
                 out = g

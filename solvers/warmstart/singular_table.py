@@ -26,9 +26,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from slew_env import SlewProblem
-from .features import canonical_form, solution_from_canonical, unsupported_reason
+from .features import canonical_form, unsupported_reason
 from .model import ModelFileError, read_table
-from .nearest import table_coverage
+from .nearest import table_coverage, tabled_solution
 
 SINGULAR_FORMAT = "slewopt-singular"
 SINGULAR_FORMAT_VERSION = 1
@@ -99,9 +99,6 @@ class SingularTable:
         _, sidx = self.tree_singular.query(x, k=min(self.n_sequences, self.T.shape[0]))
         out = []
         for j in np.atleast_1d(sidx):
-            T = self.T[j] * cf.T_eig / self.T_eig[j]
-            ratio = T / self.T[j]
-            times = [self.S[j, i][np.isfinite(self.S[j, i])] * ratio for i in range(3)]
-            _, tf, sw, uf = solution_from_canonical(problem, cf, np.zeros(6), T, times, self.U[j])
+            _, tf, sw, uf = tabled_solution(problem, cf, self.T[j], self.T_eig[j], self.S[j], self.U[j], np.zeros(6))
             out.append((uf, sw, tf))
         return share, out

@@ -6,11 +6,12 @@ verified extremal, the Newton iterations, the wall time and the final time:
 
 * ``learned`` — the model (its candidates: predicted structure, propagated structure,
   costates alone);
-* ``learned+table`` — the shipped model (full-attitude family), then, where it fails, the
-  shipped singular table (``solvers.warmstart.singular_table``: the near singular answers'
-  sequences, switch times optimised), as ``solve()`` uses it; converged = a verified answer,
-  an exact extremal or a switch-time slew (counted apart), still with no collocation or
-  classical fallback;
+* ``learned+table`` — the shipped model (full-attitude family, all its candidates, as in
+  ``learned``), then, where it fails, the shipped singular table
+  (``solvers.warmstart.singular_table``: the near singular answers' sequences, switch times
+  optimised); converged = a verified answer, an exact extremal or a switch-time slew (counted
+  apart), still with no collocation or classical fallback. (``solve()`` consults the table
+  before the model's continuation candidate, so its times differ a little.);
 * ``nearest-neighbour`` — the solutions of the k nearest problems of the training data
   (the data-driven baseline), built from the same dataset files;
 * ``eigenaxis`` — the analytic eigenaxis costates with the smoothing continuation;
@@ -70,10 +71,10 @@ def _run_one(args):
     out = []
     for name in guesses:
         t0 = time.perf_counter()
-        if name == "learned+table":
-            out.append(_with_table(prob, out))
-            continue
         try:
+            if name == "learned+table":
+                out.append(_with_table(prob, out))
+                continue
             if name in ("learned", "nearest-neighbour"):
                 model = _W["model"] if name == "learned" else _W["nn"]
                 sol, info, _ = _warm_start(prob, "indirect", model, {"warm_budget": warm_budget})

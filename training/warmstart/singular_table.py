@@ -4,7 +4,8 @@
         --out solvers/warmstart/models/full-attitude-singular.npz --tf-rel-tol 5e-4 \
         [--k 5] [--vote 0.6] [--n-sequences 3]
 
-Every verified record of the full-attitude family becomes a row: an exact extremal as a
+Every verified record of the full-attitude family becomes a row: an exact extremal
+(``training.warmstart.data.is_exact``, as for the network's training data) as a
 bang-bang problem, a switch-time answer (``method == "switch-time"``, the problems with a
 singular arc) as a singular one, with its switching sequence in canonical axes. Collocation
 answers (no exactly feasible bang-bang answer was found) and failures are left out. The data
@@ -26,10 +27,13 @@ import numpy as np
 from solvers.warmstart.features import canonical_form, solution_to_canonical
 from solvers.warmstart.singular_table import SingularTable
 from .. import dataset as ds
+from .data import is_exact
 
 
 def table_rows(paths):
     """``(X, singular, T, T_eig, U, sequences, counts)`` from the dataset files ``paths``."""
+    if isinstance(paths, (str, bytes)) or hasattr(paths, "__fspath__"):
+        paths = [paths]
     X, singular, T, T_eig, U, seqs = [], [], [], [], [], []
     counts = {"records": 0, "exact": 0, "singular": 0, "left_out": 0}
     for path in paths:
@@ -41,7 +45,7 @@ def table_rows(paths):
             if r.get("success") is not True or r.get("switch_times") is None or r.get("u_first") is None:
                 counts["left_out"] += 1
                 continue
-            if r.get("exact") is True:
+            if is_exact(r):
                 is_singular = False
             elif r.get("method") == "switch-time":
                 is_singular = True
