@@ -5,7 +5,7 @@
 # problems a route solves within its wall-clock time budget can depend on machine load, so a
 # rerun gives nearly, not exactly, the same records (and a correspondingly different model;
 # training itself is bit-reproducible for fixed data and seed).
-# On 2 cores: about 10 min (1), 16 min (3), 3 min (4), 8 min (5), 18 min (6).
+# On 2 cores: about 10 min (1), 16 min (3), 3 min (4), 8 min (5), 35 min (6).
 set -euo pipefail
 mkdir -p runs/solutions runs/data runs
 
@@ -35,11 +35,15 @@ slew evaluate --n 1000 --seed 20261122 --baseline-n 100 --out runs/evaluate \
     runs/data/full-attitude-warm-s13.jsonl
 
 # 6. the singular table (solvers/warmstart/models/full-attitude-singular.npz): solve()'s answers
-#    on 10,000 new problems (the model's guess, then auto's collocation route; the table itself
+#    on 20,000 new problems (the model's guess, then auto's collocation route; the table itself
 #    off, so that its singular answers come from collocation's sequences), then the table of
-#    which problems are singular and their switching sequences. tf_tol 5e-4 of tf: twice the
-#    largest gap to the collocation route's answer measured on held-out problems (docs/WARMSTART.md)
-slew generate --family full-attitude --n 10000 --seed 14 -o runs/data/full-attitude-s14.jsonl \
-    --solve-fn training.generate:solve_warm --solve-options '{"fallback": true, "singular_table": false}'
-python -m training.warmstart.singular_table --data runs/data/full-attitude-s14.jsonl \
+#    which problems are singular and their switching sequences. tf_tol 5e-4 of tf: about 3x the
+#    largest gap to the collocation route's answer measured on held-out problems (docs/WARMSTART.md).
+#    (seed 14 was generated before the option existed, with '{"fallback": true}': the same route)
+for s in 14 15; do
+  slew generate --family full-attitude --n 10000 --seed $s -o runs/data/full-attitude-s$s.jsonl \
+      --solve-fn training.generate:solve_warm --solve-options '{"fallback": true, "singular_table": false}'
+done
+python -m training.warmstart.singular_table \
+    --data runs/data/full-attitude-s14.jsonl runs/data/full-attitude-s15.jsonl \
     --out solvers/warmstart/models/full-attitude-singular.npz --tf-rel-tol 5e-4
