@@ -278,7 +278,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
                 rest["time_budget"] = max(0.5, rest["time_budget"] - (time.perf_counter() - t_table))
         if sol is None:
             sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0,
-                              later=later, warm_info=info)
+                              later=later, warm_info=info,
+                              warm_budget=float(options.get("warm_budget", WARM_BUDGET)))
             sol.nit += spent_table[0]
             sol.nfev += spent_table[1]
     elif prob.cones:
@@ -300,6 +301,15 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     return sol
 
 
+def _guess_alone(prob, guess, options, budget, method="indirect", with_candidates=True) -> SlewSolution:
+    """``guess`` (and its candidates, unless not ``with_candidates``) alone by the indirect
+    route, no classical candidates, within ``budget`` s: the first verified extremal that is not
+    slower than the eigenaxis slew wins (a warm start's candidates, best first)."""
+    n = 1 + len(guess.candidates) if with_candidates else 1
+    opts = dict(options, max_candidates=n, min_candidates=1, enough=1, time_budget=budget)
+    return _solve_indirect(prob, method, guess, first_verified=True, **opts)
+
+
 def _exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix) -> Optional[SlewSolution]:
     """The exact extremal from a switch-time answer's KKT costates (``kkt_guess``), if the exact
     solver certifies one no slower than ``bang`` within ``budget`` s (the optimum was bang-bang
@@ -307,8 +317,7 @@ def _exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix) -> Optional[
     attempt's work counted in ``bang`` and its outcome in ``bang.message``."""
     if kkt_guess is None or not budget > 0.05:
         return None
-    ex = _solve_indirect(prob, "indirect", kkt_guess, first_verified=True, **dict(
-        options, max_candidates=1, min_candidates=1, enough=1, time_budget=budget))
+    ex = _guess_alone(prob, kkt_guess, options, budget)
     if ex.success and ex.tf <= bang.tf * (1.0 + 1e-9):
         ex.route = f"{prefix} → {bang.route} → exact extremal from its KKT costates: {ex.route}"
         ex.nit += bang.nit
@@ -341,7 +350,6 @@ def _singular_table_route(prob, options, info):
     rec = info["singular_table"] = {"share": share, "vote": table.vote, "used": False}
     if share < table.vote:
         return None, (0, 0)
-    from .eigenaxis_answer import eigenaxis_answer
     from .switch_time_opt import bang_bang_from_sequences
     budget = float(options.get("time_budget", 20.0))
     bang, kkt_guess, spent = bang_bang_from_sequences(
@@ -350,17 +358,13 @@ def _singular_table_route(prob, options, info):
     rec["time_s"] = time.perf_counter() - t0
     if bang is None:
         return None, spent
-    # faster than the eigenaxis slew (the check recorded tells ``_no_slower_than_eigenaxis`` so):
-    # the grid eigenaxis time (problem units) with a margin, else the slew itself (~15 ms)
-    bvp = AttitudeBVP(prob)
-    baseline = eigenaxis_time(bvp.ref_problem, n_grid=1000)
-    if not bang.tf < baseline * (1.0 - EIGENAXIS_GRID_MARGIN):
-        eig = eigenaxis_answer(prob)
+    # faster than the eigenaxis slew, or no answer here (the collocation route runs instead)
+    baseline, eig = _eigenaxis_unless_faster(prob, bang.tf)
+    rec["time_s"] = time.perf_counter() - t0
+    if eig is not None:
         if not (eig.success and bang.tf < eig.tf):
-            rec["time_s"] = time.perf_counter() - t0
             return None, spent
         baseline = eig.tf
-    rec["time_s"] = time.perf_counter() - t0
     bang.baseline_tf = baseline
     bang.verification["eigenaxis_baseline"] = make_check(bang.tf / baseline - 1.0, 0.0, True)
     prefix = f"singular table ({share:.0%} of the {table.k} nearest problems singular)"
@@ -431,8 +435,7 @@ def _warm_start(prob, method, warm_start, options, split=False):
     if prob.cones:
         sol = _solve_learned_cones(prob, g, opts, budget)
     else:
-        opts.update(max_candidates=1 + len(g.candidates), min_candidates=1, enough=1, time_budget=budget)
-        sol = _solve_indirect(prob, ind_method, g, first_verified=True, **opts)
+        sol = _guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
     if t_warm:
@@ -452,16 +455,18 @@ def _no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
     replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
     if not sol.success or sol.exact or prob.cones or prob.qf is None or not prob.is_rest_to_rest:
         return sol
-    if sol.verification.get("eigenaxis_baseline", {}).get("passed"):
-        return sol          # already checked against the eigenaxis slew itself (the singular table's route)
     # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
     # p-norm with a rate limit): compare with the eigenaxis answer itself, which is cheap for a
-    # per-axis bound (compiled, ~7 ms); for a p-norm bound only when the answer is that close
-    if not math.isinf(prob.torque_norm) and not (sol.tf >= sol.baseline_tf * (1.0 - 0.03)):
-        return sol
-    from .eigenaxis_answer import eigenaxis_answer
-    eig = eigenaxis_answer(prob)
-    if not eig.success or not eig.tf < sol.tf:
+    # per-axis bound (compiled, ~7 ms) and planned only when the answer is not clearly faster
+    # than the fine grid; for a p-norm bound only when the answer is within 3 % of that baseline
+    if not math.isinf(prob.torque_norm):
+        if not (sol.tf >= sol.baseline_tf * (1.0 - 0.03)):
+            return sol
+        from .eigenaxis_answer import eigenaxis_answer
+        eig = eigenaxis_answer(prob)
+    else:
+        _, eig = _eigenaxis_unless_faster(prob, sol.tf)
+    if eig is None or not eig.success or not eig.tf < sol.tf:
         return sol
     eig.route = (f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "
                  f"({eig.tf:.9g}): the eigenaxis slew is the answer")
@@ -472,6 +477,19 @@ def _no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
     eig.warm_start = sol.warm_start
     eig.wall_time = time.perf_counter() - t0
     return eig
+
+
+def _eigenaxis_unless_faster(prob, tf):
+    """``(baseline, eig)`` for a rest-to-rest, full-attitude, per-axis problem and a final time
+    ``tf``: if ``tf`` is below the fine-grid eigenaxis time (problem units) by the margin
+    ``EIGENAXIS_GRID_MARGIN``, it is faster than the eigenaxis slew, and ``(grid time, None)``;
+    else the slew itself is planned (~15 ms): ``(grid time, eigenaxis_answer)``."""
+    from .eigenaxis_answer import eigenaxis_answer
+    bvp = AttitudeBVP(prob)
+    grid = eigenaxis_time(bvp.ref_problem, n_grid=1000)
+    if tf < grid * (1.0 - EIGENAXIS_GRID_MARGIN):
+        return grid, None
+    return grid, eigenaxis_answer(prob)
 
 
 def _warm_up_solve(problem, guess):
@@ -547,8 +565,7 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
         if cand.touches:
             sol = solve_touch_guess(prob, cand, tols=options.get("tols"), time_budget=left, smoothing=False)
         else:
-            opts = dict(options, max_candidates=1, min_candidates=1, enough=1, time_budget=left)
-            sol = _solve_indirect(prob.replace(cones=[]), "indirect", cand, first_verified=True, **opts)
+            sol = _guess_alone(prob.replace(cones=[]), cand, options, left, with_candidates=False)
             if sol.success and not _certify_clear(prob, sol):
                 sol.success, sol.status = False, STATUS_VERIFICATION_FAILED
                 sol.message = (f"the extremal without cones enters a cone (certified clearance "
@@ -566,14 +583,15 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     return last
 
 
-def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm_info=None) -> SlewSolution:
+def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm_info=None,
+                warm_budget=WARM_BUDGET) -> SlewSolution:
     """The fastest route to a verified answer.
 
     1. a given ``guess`` alone, by the indirect route (a warm start);
     2. direct collocation; where its control shows a singular arc (full-attitude, per-axis,
        ``switch_time_opt.singular_arc_evidence``), straight to 3b;
     3. otherwise ``later`` (the learned guess's continuation candidates, held back by
-       ``solve``; ``warm_info`` is updated if one wins), then exact indirect refinement from
+       ``solve``, within ``warm_budget`` s; ``warm_info`` is updated if one wins), then exact indirect refinement from
        collocation's costates and switching structure (the bang-bang extremal near the
        collocation answer), with the eigenaxis guess as a second candidate;
     3b. if no exact extremal is certified (a singular arc, mostly), a bang-bang slew with
@@ -622,20 +640,22 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
         from .switch_time_opt import singular_arc_evidence
         singular = singular_arc_evidence(prob, col) if switch_time_applies(prob) else None
 
-        def refine():
+        def refine(note):
             """The collocation guess, then the eigenaxis guess (exact for a symmetric 2-norm problem,
-            where the λω = 0 instant makes a near guess hard to refine): ``(ref, accepted, why)``."""
+            where the λω = 0 instant makes a near guess hard to refine): ``(ref, accepted, why)``;
+            an accepted ``ref`` gets its route (``note`` after collocation's time) and wall time."""
             r, ok = _refine_collocation(prob, col, options, 2,
                                         max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+            if ok:
+                r.route = f"auto: collocation ({col.wall_time:.3g} s{note}) → indirect refinement: {r.route}"
+                r.wall_time = spent()
             return r, ok, (r.message if not r.success else
                            f"the refined extremal ({r.tf:.9g}) is slower than the collocation answer")
 
         ref = None
         if singular is None:
             if later is not None and budget - spent() > 0.05:
-                lg = _solve_indirect(prob, "indirect", later, first_verified=True, **dict(
-                    options, max_candidates=1 + len(later.candidates), min_candidates=1, enough=1,
-                    time_budget=min(float(options.get("warm_budget", WARM_BUDGET)), budget - spent())))
+                lg = _guess_alone(prob, later, options, min(warm_budget, budget - spent()))
                 if warm_info is not None:
                     warm_info["deferred_result"] = "succeeded" if lg.success else "failed"
                 if lg.success:
@@ -648,10 +668,8 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
                 # (its work is counted in the answer's nit and nfev)
                 col.nit += lg.nit
                 col.nfev += lg.nfev
-            ref, accepted, why = refine()
+            ref, accepted, why = refine("")
             if accepted:
-                ref.route = f"auto: collocation ({col.wall_time:.3g} s) → indirect refinement: {ref.route}"
-                ref.wall_time = spent()
                 return ref
             why = f"exact refinement not certified: {why}"
         else:
@@ -680,11 +698,8 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
             return bang
         if ref is None and budget - spent() > 0.05:
             # a singular arc in sight but no bang-bang answer: the exact refinement after all
-            ref, accepted, why_ref = refine()
+            ref, accepted, why_ref = refine("; no switch-time answer")
             if accepted:
-                ref.route = (f"auto: collocation ({col.wall_time:.3g} s; no switch-time answer) → indirect "
-                             f"refinement: {ref.route}")
-                ref.wall_time = spent()
                 return ref
             why += f"; no switch-time answer; exact refinement then not certified: {why_ref}"
         col.route = f"auto: collocation ({col.route}; {why[:300]})"
