@@ -103,8 +103,13 @@ def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
                      np.array([e[0] for e in ev]))
 
 
-def _candidates(bvp, guess, max_candidates, seed, per_axis):
+def _candidates(bvp, guess, max_candidates, seed, per_axis, unusable=None):
     """Yields ``(z, T, structure, source)`` in the order they are tried.
+
+    ``unusable``: ``None`` (a guess that cannot be put in the solver's gauge, such as zero
+    costates, is a ``ValueError``: the user's bad input), or a list to which such candidates
+    are added as ``"source: reason"`` and skipped, each using up its slot (a model's guesses:
+    one degenerate candidate must not stop the solve).
 
     Order: the user's guess and its candidates; the eigenaxis guess (smoothing
     continuation); per-axis only, the structure templates around it (cheap: one
@@ -125,8 +130,15 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis):
         for g in guess.iter_all():
             if count >= max_candidates:
                 break       # (deferred candidates past the limit are never computed)
-            z, T = g.to_nondim(bvp)
-            st = _structure_from_guess(g, bvp)
+            try:
+                z, T = g.to_nondim(bvp)
+                st = _structure_from_guess(g, bvp)
+            except ValueError as e:
+                if unusable is None:
+                    raise
+                unusable.append(f"{g.source}: unusable guess ({e})")
+                count += 1
+                continue
             if fresh(z, st):
                 yield z, T, st, g.source
                 count += 1
@@ -306,7 +318,8 @@ def _guess_alone(prob, guess, options, budget, method="indirect", with_candidate
     route, no classical candidates, within ``budget`` s: the first verified extremal that is not
     slower than the eigenaxis slew wins (a warm start's candidates, best first)."""
     n = 1 + len(guess.candidates) if with_candidates else 1
-    opts = dict(options, max_candidates=n, min_candidates=1, enough=1, time_budget=budget)
+    # model_guess: a candidate the solver cannot use is a failed candidate, not an error
+    opts = dict(options, max_candidates=n, min_candidates=1, enough=1, time_budget=budget, model_guess=True)
     return _solve_indirect(prob, method, guess, first_verified=True, **opts)
 
 
@@ -721,7 +734,8 @@ def _refine_collocation(target, col, options, max_candidates, budget):
     per_axis = math.isinf(target.torque_norm)
     g = Guess(col.costate0, col.tf, col.switch_times if per_axis else None, col.u_first if per_axis else None,
               source="collocation")
-    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=1, time_budget=budget)
+    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=1, time_budget=budget,
+                model_guess=True)
     ref = _solve_indirect(target, "indirect", g, **opts)
     col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
     accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel))
@@ -893,7 +907,8 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     found = []   # (T, attempt, tr, checks, source)
     failures = []
     last_verif_fail = None
-    for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis):
+    for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
+                                     unusable=failures if options.get("model_guess") else None):
         # the budget is checked between candidates, and the first one always runs: in a fresh
         # process compiling the kernels alone can take longer than a short budget
         if tried > 0 and time.perf_counter() > deadline:

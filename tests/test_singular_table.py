@@ -266,7 +266,7 @@ def test_a_table_answer_that_is_a_kkt_point_goes_on_to_the_exact_extremal(tmp_pa
         def guess(self, problem):
             from solvers import Guess
             return Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned")
-    monkeypatch.setattr(warmstart, "default_model", lambda: Wrong())
+    monkeypatch.setattr(warmstart, "default_warm_start", lambda: Wrong())
     monkeypatch.setattr(warmstart, "DEFAULT_SINGULAR_TABLE_FILE", str(tmp_path / "t.npz"))
     warmstart.default_singular_table.cache_clear()
     try:

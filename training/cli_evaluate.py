@@ -6,8 +6,9 @@ import os
 
 def add_arguments(p):
     p.add_argument("--model", default=None,
-                   help="model file, or a shipped model by name: default (full attitude), pointing-cones (the "
-                        "network with its neighbour table); default: the shipped full-attitude model")
+                   help="model file (a network alone, or a .nn.npz table), or a shipped warm start by name: "
+                        "default (the full-attitude network, then its neighbour table), pointing-cones (its "
+                        "neighbour table, then the network); default: default")
     p.add_argument("--family", default="full-attitude", help="task family of the held-out problems")
     p.add_argument("--n", type=int, default=1000, help="held-out problems (default 1000)")
     p.add_argument("--seed", type=int, default=20261122, help="seed of the held-out problems (fresh: not a data seed)")

@@ -30,8 +30,8 @@ def run(args) -> int:
         shutil.copyfile(s["model"], args.export)
         shutil.copyfile(os.path.splitext(s["model"])[0] + ".md", os.path.splitext(args.export)[0] + ".md")
         if s.get("table"):
-            from training.warmstart.train import cone_table_path
-            shutil.copyfile(s["table"], cone_table_path(args.export))
+            from training.warmstart.train import table_path
+            shutil.copyfile(s["table"], table_path(args.export))
     print(json.dumps({k: s[k] for k in ("n_exact_solutions", "n_train", "n_val", "epochs", "train_wall_time_s", "model")}))
     print("validation:", json.dumps(s["val_metrics"]))
     return 0

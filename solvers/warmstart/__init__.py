@@ -17,6 +17,9 @@ from .nearest import NearestNeighbourModel
 
 MODELS_DIR = os.path.join(os.path.dirname(__file__), "models")
 DEFAULT_MODEL_FILE = os.path.join(MODELS_DIR, "full-attitude.npz")
+# its table of solved problems (its own training solutions), whose nearest solutions are tried
+# after the network's structured candidates (``attitude_ensemble``)
+DEFAULT_TABLE_FILE = os.path.join(MODELS_DIR, "full-attitude.nn.npz")
 # the shipped model for pointing-only slews with keep-out cones (used by default when present)
 DEFAULT_CONE_MODEL_FILE = os.path.join(MODELS_DIR, "pointing-cones.npz")
 # its table of solved problems, whose nearest solutions are tried before the network's guess
@@ -49,8 +52,32 @@ def _load_cached(path, key):
 
 @functools.lru_cache(maxsize=1)
 def default_model() -> WarmStartModel:
-    """The shipped model (loaded once per process)."""
+    """The shipped full-attitude network (loaded once per process)."""
     return WarmStartModel.load(DEFAULT_MODEL_FILE)
+
+
+def default_warm_start():
+    """What ``warm_start="default"`` uses for full-attitude problems: the shipped network, then
+    the nearest solutions of its table (``attitude_ensemble``), or the network alone if no table
+    is shipped."""
+    return _with_table(default_model(), DEFAULT_TABLE_FILE, "attitude")
+
+
+@functools.lru_cache(maxsize=4)
+def _ensemble(network, table, kind):
+    if kind == "attitude":
+        from .attitude_ensemble import AttitudeEnsembleWarmStart
+        return AttitudeEnsembleWarmStart(network, table)
+    from .cone_ensemble import ConeEnsembleWarmStart
+    return ConeEnsembleWarmStart(network, table)
+
+
+def _with_table(network, table_file, kind):
+    """``network`` with the shipped neighbour table ``table_file`` (one ensemble object per
+    pair of loaded files, cached), or ``network`` alone if no table is shipped."""
+    if not os.path.exists(table_file):
+        return network
+    return _ensemble(network, load_model(table_file), kind)
 
 
 @functools.lru_cache(maxsize=1)
@@ -68,16 +95,7 @@ def default_cone_model():
     ``None`` if no model is shipped."""
     if not os.path.exists(DEFAULT_CONE_MODEL_FILE):
         return None
-    network = load_model(DEFAULT_CONE_MODEL_FILE)
-    if not os.path.exists(DEFAULT_CONE_TABLE_FILE):
-        return network
-    return _cone_ensemble(network, load_model(DEFAULT_CONE_TABLE_FILE))
-
-
-@functools.lru_cache(maxsize=2)
-def _cone_ensemble(network, table):
-    from .cone_ensemble import ConeEnsembleWarmStart
-    return ConeEnsembleWarmStart(network, table)
+    return _with_table(load_model(DEFAULT_CONE_MODEL_FILE), DEFAULT_CONE_TABLE_FILE, "cones")
 
 
 class _ConeModelOptIn:
@@ -99,7 +117,7 @@ class _ConeModelOptIn:
 
 
 def resolve(warm_start, problem=None):
-    """``"default"`` → the shipped full-attitude model (a pointing problem with cones gets no
+    """``"default"`` → the shipped full-attitude warm start (a pointing problem with cones gets no
     guess by default, with the reason recorded); ``"pointing-cones"`` → the shipped
     pointing-cones model; a path → that file; a model → itself; ``None`` → ``None``."""
     if warm_start is None or warm_start is False:
@@ -107,7 +125,7 @@ def resolve(warm_start, problem=None):
     if isinstance(warm_start, str) and warm_start == "default":
         if problem is not None and problem.cones and problem.qf is None:
             return _ConeModelOptIn()
-        return default_model()
+        return default_warm_start()
     if isinstance(warm_start, str) and warm_start == "pointing-cones":
         cone = default_cone_model()
         if cone is None:
@@ -124,5 +142,5 @@ def resolve(warm_start, problem=None):
 __all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "features",
            "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
            "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
-           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
+           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_TABLE_FILE", "default_warm_start", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
            "default_cone_model", "default_singular_table", "DEFAULT_SINGULAR_TABLE_FILE"]

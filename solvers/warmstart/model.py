@@ -302,7 +302,10 @@ def _propagated_structure(problem, costate0, tf):
     """Switch times and first signs that the guessed costates' own switching functions give."""
     from ..attitude_bvp import AttitudeBVP   # local: keeps model loading light
     bvp = AttitudeBVP(problem)
-    z, T = Guess(costate0, tf).to_nondim(bvp)
+    try:
+        z, T = Guess(costate0, tf).to_nondim(bvp)
+    except ValueError:      # degenerate costates (zero in the gauge): nothing to propagate
+        return None
     tr = bvp.record(z, T, n_max=0)
     if not tr.ok:
         return None

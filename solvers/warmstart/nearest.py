@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from slew_env import SlewProblem
 from ..guesses import Guess
 from .features import canonical_form, solution_from_canonical, unsupported_reason
-from .model import read_table
+from .model import ModelFileError, read_table
 
 NN_FORMAT = "slewopt-nn"
 NN_FORMAT_VERSION = 1
@@ -61,7 +61,16 @@ class NearestNeighbourModel:
             raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
         self.Z, self.T, self.T_eig = np.asarray(Z, float), np.asarray(T, float), np.asarray(T_eig, float)
         self.U, self.S = np.asarray(U, float), np.asarray(S, float)
+        n = self.X.shape[0]
+        if (self.Z.shape != (n, 6) or self.T.shape != (n,) or self.T_eig.shape != (n,) or self.U.shape != (n, 3)
+                or self.S.ndim != 3 or self.S.shape[:2] != (n, 3)):
+            raise ValueError(f"Z, T, T_eig, U, S: expected one row per tabled problem ({n})")
+        if not (np.all(np.isfinite(self.X)) and np.all(np.isfinite(self.Z)) and np.all(self.T > 0)
+                and np.all(self.T_eig > 0)):
+            raise ValueError("X, Z, T, T_eig: the features and costates must be finite and the times positive")
         self.k = int(k)
+        if self.k < 1:
+            raise ValueError(f"k: need at least one neighbour, got {self.k}")
         self.domain = domain or {}
         self.name = name
         self.scale = np.maximum(self.X.std(axis=0), 1e-3)
@@ -78,24 +87,37 @@ class NearestNeighbourModel:
         if card.get("kind") == "pointing-cones":
             from .cone_nearest import ConeNearestNeighbourModel
             return ConeNearestNeighbourModel.from_card(d, card, path)
-        return cls.from_arrays(d, k=card.get("k", 3), domain=card.get("domain"), name=card.get("name", "nearest-neighbour"))
+        try:
+            return cls.from_arrays(d, k=card.get("k", 3), domain=card.get("domain"),
+                                   name=card.get("name", "nearest-neighbour"))
+        except (KeyError, ValueError, TypeError) as e:
+            raise ModelFileError(f"model: {path} is not a usable nearest-neighbour table ({e})") from None
 
-    def save(self, path):
+    def save(self, path, compact=False):
+        """Write the table; ``compact``: float32 features, costates and switch times, int8 signs,
+        compressed (a third of the size; a guess needs no more digits), as the shipped table."""
         card = {"format": NN_FORMAT, "format_version": NN_FORMAT_VERSION, "k": self.k, "domain": self.domain,
                 "name": self.name}
+        if compact:
+            f32 = np.float32
+            np.savez_compressed(path, X=self.X.astype(f32), Z=self.Z.astype(f32), T=self.T.astype(f32),
+                                T_eig=self.T_eig.astype(f32), U=self.U.astype(np.int8), S=self.S.astype(f32),
+                                card=np.array(json.dumps(card)))
+            return
         np.savez(path, X=self.X, Z=self.Z, T=self.T, T_eig=self.T_eig, U=self.U, S=self.S,
                  card=np.array(json.dumps(card)))
 
     def covers(self, problem):
         return table_coverage(SlewProblem.from_dict(problem), unsupported_reason)
 
-    def guess(self, problem) -> Guess:
+    def guess(self, problem, k=None) -> Guess:
+        """The ``k`` (default: the table's) nearest solutions, as one guess and its candidates."""
         problem = SlewProblem.from_dict(problem)
         why = self.covers(problem)
         if why:
             raise ValueError(f"problem not covered by {self.name}: {why}")
         cf = canonical_form(problem)
-        k = min(self.k, self.X.shape[0])
+        k = min(self.k if k is None else int(k), self.X.shape[0])
         _, idx = self.tree.query(cf.x / self.scale, k=k)
         idx = np.atleast_1d(idx)
         out = None

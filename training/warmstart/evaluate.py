@@ -45,11 +45,12 @@ SHIPPED = ("default", "pointing-cones")
 
 
 def _model(model_path):
-    """A model file, or a shipped model by name (``"pointing-cones"``: the network with its
-    neighbour table, as ``solve(..., warm_start="pointing-cones")`` uses it)."""
+    """A model file (a network alone, or a table), or a shipped warm start by name, as ``solve``
+    uses it: ``"default"`` (the full-attitude network, then its neighbour table) or
+    ``"pointing-cones"`` (its neighbour table, then the network)."""
     from solvers import warmstart
     if not model_path or model_path == "default":
-        return warmstart.default_model()
+        return warmstart.default_warm_start()
     if model_path in SHIPPED:
         return warmstart.resolve(model_path)
     return warmstart.load_model(model_path)
@@ -139,8 +140,14 @@ def inference_time(model, family, seed, n=200):
     from solvers.warmstart.cone_model import ConeWarmStartModel
     from solvers.warmstart.features import canonical_form
     from training.generate import GenerationSpec, problem_for
+    from solvers.warmstart.attitude_ensemble import AttitudeEnsembleWarmStart
     from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
-    if isinstance(model, ConeEnsembleWarmStart):
+    if isinstance(model, AttitudeEnsembleWarmStart):
+        def infer(p):      # the network's outputs and the table's neighbours
+            cf = canonical_form(p)
+            model.network.predict_canonical(cf.x, cf.T_eig)
+            model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
+    elif isinstance(model, ConeEnsembleWarmStart):
         def infer(p):      # the table's neighbours and the network's outputs
             cf = cone_canonical_form(p)
             model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)

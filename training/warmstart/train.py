@@ -211,15 +211,32 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     if _is_cones(cfg):
         # the shipped pointing-cones warm start tries the nearest solved problems first
         # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
-        summary["table"] = export_cone_table(data_paths, cone_table_path(path), int(cfg["max_switches"]))
+        summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
+    else:
+        # the shipped full-attitude warm start tries them after the network's structured
+        # candidates (solvers.warmstart.attitude_ensemble)
+        summary["table"] = export_attitude_table(data_paths, table_path(path), int(cfg["max_switches"]),
+                                                 cfg.get("domain", {}))
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     return summary
 
 
-def cone_table_path(model_path):
-    """Where the neighbour table of a pointing-cones model lives: ``NAME.nn.npz`` next to ``NAME.npz``."""
+def table_path(model_path):
+    """Where the neighbour table of a model lives: ``NAME.nn.npz`` next to ``NAME.npz``."""
     return os.path.splitext(os.fspath(model_path))[0] + ".nn.npz"
+
+
+def export_attitude_table(data_paths, path, max_switches, domain, k=3):
+    """The exact solutions of ``data_paths`` as a compact nearest-neighbour table (float32,
+    compressed; ``solvers.warmstart.nearest``), with the network's domain."""
+    from solvers.warmstart import NearestNeighbourModel
+    from .data import training_arrays
+    a = training_arrays(data_paths, max_switches)
+    table = NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=k, domain=domain,
+                                  name=f"full-attitude solutions ({a['X'].shape[0]:,} exact)")
+    table.save(path, compact=True)
+    return path
 
 
 def export_cone_table(data_paths, path, max_switches, k=4):

@@ -1,0 +1,78 @@
+"""The shipped warm start for full-attitude per-axis slews: the network's guess, then the
+solutions of the nearest solved problems, then the network's costates alone.
+
+The network and the lookup fail on different problems. On the 1,000 held-out problems of
+``slew evaluate`` (docs/WARMSTART.md) the network converged on 853 and the three nearest of
+39,494 tabled solutions on 840, but 14 of the lookup's answers were problems the network
+missed (and 27 the other way round): the network regresses a switching structure that can be
+one switch off, where a neighbour's solution is one consistent extremal. So the candidates
+are, in order:
+
+1. the network's guess and its propagated structure (``WarmStartModel``: the switch-time
+   Newton, milliseconds);
+2. the solutions of the ``n_neighbours`` nearest tabled problems (``NearestNeighbourModel``,
+   mapped to this problem's axes; a failed one costs a few milliseconds);
+3. the network's costates alone (smoothing continuation, up to a second; ``solve`` with
+   ``method="auto"`` runs it only after collocation, ``api._split_continuation``).
+
+Files: the network ``full-attitude.npz`` and, next to it, the table ``full-attitude.nn.npz``
+(the network's own training solutions; ``training.warmstart.evaluate.build_nn``).
+"""
+from __future__ import annotations
+
+import time
+
+from slew_env import SlewProblem
+
+
+class AttitudeEnsembleWarmStart:
+    """The network's structured candidates, the neighbours' solutions, then the network's
+    continuation candidate (module docstring)."""
+
+    KIND = "full-attitude-ensemble"
+
+    def __init__(self, network, table, n_neighbours=3):
+        from .model import WarmStartModel
+        from .nearest import NearestNeighbourModel
+        if not isinstance(network, WarmStartModel) or type(table) is not NearestNeighbourModel:
+            raise ValueError("model: the ensemble needs a full-attitude network (WarmStartModel) and a full-attitude "
+                             f"table (NearestNeighbourModel), got {type(network).__name__} and {type(table).__name__}")
+        if isinstance(n_neighbours, bool) or int(n_neighbours) != n_neighbours or int(n_neighbours) < 1:
+            raise ValueError(f"n_neighbours: must be a positive integer, got {n_neighbours!r}")
+        self.network, self.table = network, table
+        self.n_neighbours = int(n_neighbours)
+        n = int(table.X.shape[0])
+        self.name = f"full-attitude (the network, then {self.n_neighbours} nearest of {n:,} solutions)"
+        self.domain = network.domain
+        self.card = network.card
+        self.last_inference_s = float("nan")
+
+    def covers(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        return self.network.covers(problem) or self.table.covers(problem)
+
+    def guess_or_reason(self, problem):
+        problem = SlewProblem.from_dict(problem)
+        t0 = time.perf_counter()
+        g, why = self.network.guess_or_reason(problem)
+        if why:
+            return None, why
+        why = self.table.covers(problem)
+        if why:
+            return None, why
+        nn = self.table.guess(problem, k=self.n_neighbours)
+        neighbours = [nn] + list(nn.candidates)
+        nn.candidates = []
+        # the network's structured candidates (the guess and, deferred, its propagated
+        # structure) keep their place; the neighbours go before its costate-only candidate
+        structured = [c for c in g.candidates if callable(c) or c.switch_times is not None]
+        costate_only = [c for c in g.candidates if not callable(c) and c.switch_times is None]
+        g.candidates = structured + neighbours + costate_only
+        g.inference_s = self.last_inference_s = time.perf_counter() - t0
+        return g, None
+
+    def guess(self, problem):
+        g, why = self.guess_or_reason(problem)
+        if why:
+            raise ValueError(f"problem not covered by {self.name}: {why}")
+        return g

@@ -1,0 +1,130 @@
+"""The shipped full-attitude warm start: the network, then the nearest tabled solutions."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from solvers import solve
+from solvers.warmstart import (DEFAULT_TABLE_FILE, ModelFileError, NearestNeighbourModel, WarmStartModel,
+                               default_model, default_warm_start, load_model)
+from solvers.warmstart.attitude_ensemble import AttitudeEnsembleWarmStart
+from training.generate import GenerationSpec, problem_for
+
+DATA = os.path.join(os.path.dirname(__file__), "data", "full-attitude-small.jsonl")
+
+
+def _exact():
+    rows = [json.loads(line) for line in open(DATA).read().splitlines()[1:]]
+    return [r for r in rows if r["method"] == "indirect"]
+
+
+def _table(k=3):
+    from training.warmstart.data import training_arrays
+    a = training_arrays([DATA])
+    return NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=k)
+
+
+def _sources(g):
+    return [c if callable(c) else c.source for c in [g] + list(g.candidates)]
+
+
+def test_the_default_warm_start_is_the_network_then_the_table():
+    m = default_warm_start()
+    assert isinstance(m, AttitudeEnsembleWarmStart)
+    assert m.network is default_model() and m.table.domain == m.network.domain
+    assert m.table.X.shape[0] > 30_000 and os.path.getsize(DEFAULT_TABLE_FILE) < 4_000_000
+    p = problem_for(GenerationSpec("full-attitude", seed=20261122), 0)
+    g = m.guess(p)
+    src = _sources(g)
+    # the network's guess, its propagated structure (deferred: a callable), the three nearest
+    # solutions, and last the network's costates alone
+    assert src[0] == "learned" and callable(src[1])
+    assert src[2:5] == ["nearest-neighbour[0]", "nearest-neighbour[1]", "nearest-neighbour[2]"]
+    assert src[5] == "learned-costate" and len(src) == 6
+    assert g.inference_s < 0.05
+    assert m.covers(p) is None and "rate_max" in m.covers(p.replace(rate_max=0.5))
+
+
+def test_a_neighbour_answers_where_the_network_fails():
+    # a network with every weight zero predicts no switches and a rotation about nothing:
+    # its candidates fail, and the tabled solution of the same problem converges at once
+    net = default_model()
+    zero = WarmStartModel([(np.zeros_like(W), np.zeros_like(b)) for W, b in net.weights], net.x_mean, net.x_std,
+                          net.card)
+    ens = AttitudeEnsembleWarmStart(zero, _table())
+    r = _exact()[3]
+    s = solve(r["problem"], method="indirect", warm_start=ens)
+    assert s.success and s.exact and s.guess == "nearest-neighbour[0]"
+    assert s.tf == pytest.approx(r["tf"], rel=1e-9)
+    assert s.warm_start["succeeded"] and s.warm_start["model"] == ens.name
+
+
+def test_auto_tries_the_neighbours_before_collocation():
+    # auto holds the costates-only candidate until after collocation; the neighbours are not held
+    net = default_model()
+    zero = WarmStartModel([(np.zeros_like(W), np.zeros_like(b)) for W, b in net.weights], net.x_mean, net.x_std,
+                          net.card)
+    r = _exact()[3]
+    s = solve(r["problem"], warm_start=AttitudeEnsembleWarmStart(zero, _table()))
+    assert s.success and s.guess == "nearest-neighbour[0]" and "collocation" not in s.route
+    assert s.warm_start["deferred"] == 1
+
+
+def test_ensemble_rejects_wrong_parts():
+    with pytest.raises(ValueError, match="ensemble needs"):
+        AttitudeEnsembleWarmStart(_table(), _table())
+    with pytest.raises(ValueError, match="n_neighbours"):
+        AttitudeEnsembleWarmStart(default_model(), _table(), n_neighbours=0)
+
+
+def test_compact_table_round_trip_and_damaged_files(tmp_path):
+    t = _table()
+    t.save(tmp_path / "c.nn.npz", compact=True)
+    t2 = load_model(tmp_path / "c.nn.npz")
+    np.testing.assert_allclose(t2.Z, t.Z, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(t2.T, t.T, rtol=1e-6)
+    r = _exact()[5]
+    g1, g2 = t.guess(r["problem"], k=2), t2.guess(r["problem"], k=2)
+    assert len(g2.candidates) == 1 and g2.source == g1.source
+    np.testing.assert_allclose(g2.costate0, g1.costate0, rtol=1e-5, atol=1e-6)
+    # a table whose arrays disagree in length is refused with the reason, not an IndexError later
+    with np.load(tmp_path / "c.nn.npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    np.savez(tmp_path / "bad.nn.npz", **dict(arrays, Z=arrays["Z"][:-1]))
+    with pytest.raises(ModelFileError, match="one row per tabled problem"):
+        load_model(tmp_path / "bad.nn.npz")
+    np.savez(tmp_path / "nan.nn.npz", **dict(arrays, T=arrays["T"] * np.nan))
+    with pytest.raises(ModelFileError, match="times positive"):
+        load_model(tmp_path / "nan.nn.npz")
+
+
+def test_training_writes_the_table_next_to_the_model(tmp_path):
+    pytest.importorskip("torch")
+    from training.warmstart.train import table_path, train
+    s = train([DATA], tmp_path / "a", seed=3, epochs=2, progress_bar=False)
+    assert s["table"] == table_path(s["model"]) and os.path.exists(s["table"])
+    t = load_model(s["table"])
+    assert type(t) is NearestNeighbourModel and t.X.shape[0] == 69 and t.domain == WarmStartModel.load(s["model"]).domain
+
+
+def test_degenerate_guess_is_an_error_from_a_user_and_a_failed_candidate_from_a_model():
+    from solvers import Guess
+    r = _exact()[3]
+    zero = Guess(np.zeros(7), r["tf"], source="mine")
+    with pytest.raises(ValueError, match="costate is zero"):
+        solve(r["problem"], method="indirect", guess=zero)
+
+    class ZeroModel:
+        name = "zero"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            return Guess(np.zeros(7), r["tf"], source="learned")
+
+    s = solve(r["problem"], method="indirect", warm_start=ZeroModel(), max_candidates=3)
+    assert s.warm_start["succeeded"] is False and s.warm_start["candidates"] == 0
+    assert s.success and s.tf == pytest.approx(r["tf"], rel=1e-9)
+    assert "unusable guess" in s.route
