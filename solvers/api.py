@@ -103,13 +103,15 @@ def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
                      np.array([e[0] for e in ev]))
 
 
-def _candidates(bvp, guess, max_candidates, seed, per_axis, unusable=None):
+def _candidates(bvp, guess, max_candidates, seed, per_axis, unusable=None, guess_only=False):
     """Yields ``(z, T, structure, source)`` in the order they are tried.
 
     ``unusable``: ``None`` (a guess that cannot be put in the solver's gauge, such as zero
     costates, is a ``ValueError``: the user's bad input), or a list to which such candidates
     are added as ``"source: reason"`` and skipped, each using up its slot (a model's guesses:
-    one degenerate candidate must not stop the solve).
+    one degenerate candidate must not stop the solve). ``guess_only``: the guess and its
+    candidates, nothing after them (a deferred candidate that gives nothing leaves its slot
+    empty rather than to a classical candidate).
 
     Order: the user's guess and its candidates; the eigenaxis guess (smoothing
     continuation); per-axis only, the structure templates around it (cheap: one
@@ -142,7 +144,7 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis, unusable=None):
             if fresh(z, st):
                 yield z, T, st, g.source
                 count += 1
-    if count >= max_candidates:
+    if count >= max_candidates or guess_only:
         return
     rng = np.random.default_rng(seed)
     g = eigenaxis_guess(bvp)
@@ -319,7 +321,8 @@ def _guess_alone(prob, guess, options, budget, method="indirect", with_candidate
     slower than the eigenaxis slew wins (a warm start's candidates, best first)."""
     n = 1 + len(guess.candidates) if with_candidates else 1
     # model_guess: a candidate the solver cannot use is a failed candidate, not an error
-    opts = dict(options, max_candidates=n, min_candidates=1, enough=1, time_budget=budget, model_guess=True)
+    opts = dict(options, max_candidates=n, min_candidates=1, enough=1, time_budget=budget, model_guess=True,
+                guess_only=True)
     return _solve_indirect(prob, method, guess, first_verified=True, **opts)
 
 
@@ -623,7 +626,7 @@ def _solve_auto(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm
     indirect_ok = not prob.cones
     tried_guess = None
     if guess is not None and indirect_ok:
-        opts = dict(options, max_candidates=1 + len(guess.candidates), min_candidates=1)
+        opts = dict(options, max_candidates=1 + len(guess.candidates), min_candidates=1, guess_only=True)
         tried_guess = _solve_indirect(prob, "indirect", guess, **opts)
         if tried_guess.success:
             tried_guess.route = f"auto: given guess → {tried_guess.route}"
@@ -908,7 +911,8 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     failures = []
     last_verif_fail = None
     for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
-                                     unusable=failures if options.get("model_guess") else None):
+                                     unusable=failures if options.get("model_guess") else None,
+                                     guess_only=bool(options.get("guess_only"))):
         # the budget is checked between candidates, and the first one always runs: in a fresh
         # process compiling the kernels alone can take longer than a short budget
         if tried > 0 and time.perf_counter() > deadline:

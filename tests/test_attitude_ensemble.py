@@ -38,10 +38,10 @@ def test_the_default_warm_start_is_the_network_then_the_table():
     g = m.guess(p)
     src = _sources(g)
     # the network's guess, its propagated structure (deferred: a callable), the three nearest
-    # solutions, and last the network's costates alone
+    # solutions, five more (deferred), and last the network's costates alone
     assert src[0] == "learned" and callable(src[1])
     assert src[2:5] == ["nearest-neighbour[0]", "nearest-neighbour[1]", "nearest-neighbour[2]"]
-    assert src[5] == "learned-costate" and len(src) == 6
+    assert all(callable(c) for c in src[5:10]) and src[10] == "learned-costate" and len(src) == 11
     assert g.inference_s < 0.05
     assert m.covers(p) is None and "rate_max" in m.covers(p.replace(rate_max=0.5))
 
@@ -128,3 +128,46 @@ def test_degenerate_guess_is_an_error_from_a_user_and_a_failed_candidate_from_a_
     assert s.warm_start["succeeded"] is False and s.warm_start["candidates"] == 0
     assert s.success and s.tf == pytest.approx(r["tf"], rel=1e-9)
     assert "unusable guess" in s.route
+
+
+def _held_out(i):
+    return problem_for(GenerationSpec("full-attitude", seed=20261122), i)
+
+
+def test_more_neighbours_only_where_the_singular_table_does_not_vote_singular():
+    m = default_warm_start()
+    assert m.singular_table is not None and m.n_more == 5
+    # held-out 5: all 5 nearest tabled problems singular; 465: a bang-bang optimum that the
+    # network and the 3 nearest miss, and the 4th nearest solution reaches
+    sing, share = _held_out(5), m.singular_table.query(_held_out(5))[0]
+    assert share >= m.singular_table.vote
+    assert [g.source for g in m.guess(sing).iter_all()] == [
+        "learned", "learned-propagated", "nearest-neighbour[0]", "nearest-neighbour[1]", "nearest-neighbour[2]",
+        "learned-costate"]
+    p = _held_out(465)
+    assert m.singular_table.query(p)[0] < m.singular_table.vote
+    src = [g.source for g in m.guess(p).iter_all()]
+    assert src[-6:] == [f"nearest-neighbour[{k}]" for k in range(3, 8)] + ["learned-costate"]
+    s = solve(p)
+    assert s.success and s.exact and s.guess == "nearest-neighbour[3]" and "collocation" not in s.route
+
+
+def test_a_model_guess_runs_alone_without_classical_candidates():
+    from solvers import Guess
+
+    class Wrong:              # a guess that fails, and a deferred candidate that gives nothing
+        name = "wrong"
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            g = Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned")
+            g.candidates = [lambda: None]
+            return g
+
+    r = _exact()[3]
+    s = solve(r["problem"], method="indirect", warm_start=Wrong())
+    # the empty slot is not handed to the eigenaxis guess inside the warm stage
+    assert s.warm_start["succeeded"] is False and s.warm_start["candidates"] == 1
+    assert s.success and s.route.startswith("learned guess failed")

@@ -60,24 +60,28 @@ def default_warm_start():
     """What ``warm_start="default"`` uses for full-attitude problems: the shipped network, then
     the nearest solutions of its table (``attitude_ensemble``), or the network alone if no table
     is shipped."""
-    return _with_table(default_model(), DEFAULT_TABLE_FILE, "attitude")
+    try:    # its vote decides whether more neighbours are worth trying (attitude_ensemble)
+        singular = default_singular_table()
+    except (OSError, ValueError):   # a damaged file: solve() records the error on its own route
+        singular = None
+    return _with_table(default_model(), DEFAULT_TABLE_FILE, "attitude", singular)
 
 
 @functools.lru_cache(maxsize=4)
-def _ensemble(network, table, kind):
+def _ensemble(network, table, kind, singular=None):
     if kind == "attitude":
         from .attitude_ensemble import AttitudeEnsembleWarmStart
-        return AttitudeEnsembleWarmStart(network, table)
+        return AttitudeEnsembleWarmStart(network, table, singular_table=singular)
     from .cone_ensemble import ConeEnsembleWarmStart
     return ConeEnsembleWarmStart(network, table)
 
 
-def _with_table(network, table_file, kind):
+def _with_table(network, table_file, kind, singular=None):
     """``network`` with the shipped neighbour table ``table_file`` (one ensemble object per
-    pair of loaded files, cached), or ``network`` alone if no table is shipped."""
+    set of loaded files, cached), or ``network`` alone if no table is shipped."""
     if not os.path.exists(table_file):
         return network
-    return _ensemble(network, load_model(table_file), kind)
+    return _ensemble(network, load_model(table_file), kind, singular)
 
 
 @functools.lru_cache(maxsize=1)
