@@ -171,3 +171,19 @@ def test_a_model_guess_runs_alone_without_classical_candidates():
     # the empty slot is not handed to the eigenaxis guess inside the warm stage
     assert s.warm_start["succeeded"] is False and s.warm_start["candidates"] == 1
     assert s.success and s.route.startswith("learned guess failed")
+
+
+def test_auto_challenges_a_learned_answer_much_slower_than_predicted():
+    # held-out 789: the network's guess fails and the 2nd nearest solution converges to a local
+    # extremal 1.6 % above the network's predicted time (1.6575 vs 1.6311); the collocation route
+    # finds the optimum, 1.2 % faster
+    s = solve(_held_out(789))
+    rec = s.warm_start["local_optimum_check"]
+    assert rec["won"] and rec["tf"] == pytest.approx(1.65752232, rel=1e-7)
+    assert rec["tf"] > rec["predicted_tf"] * 1.015
+    assert s.success and s.exact and s.tf == pytest.approx(1.63743643, rel=1e-7) and s.guess == "collocation"
+    assert "above the model's predicted" in s.route
+    # an answer near the prediction is not challenged
+    s0 = solve(_held_out(0))
+    assert s0.guess == "learned" and "local_optimum_check" not in s0.warm_start
+    assert s0.tf <= s0.warm_start["predicted_tf"] * 1.015
