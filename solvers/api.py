@@ -76,6 +76,7 @@ BANG_BANG_BUDGET = 1.0
 # auto: a warm-start extremal this much slower than the model's predicted final time is
 # challenged by the collocation route (``_challenge_if_slower_than_predicted``)
 LOCAL_OPTIMUM_MARGIN = 0.015
+CHALLENGE_MIN_BUDGET = 1.0   # s: collocation's own floor (``_solve_auto``); with less left, no challenge
 # s: the singular table's switch-time optimisations (all its sequences); then, only when the
 # answer's sequence is a KKT point, the exact solver from its KKT costates (its own budget)
 SINGULAR_TABLE_BUDGET = 0.3
@@ -132,13 +133,13 @@ def _candidates(bvp, guess, max_candidates, seed, per_axis, unusable=None, guess
 
     count = 0
     if guess is not None:
-        for g in guess.iter_all():
+        for g in guess.iter_all(errors=unusable):
             if count >= max_candidates:
                 break       # (deferred candidates past the limit are never computed)
             try:
                 z, T = g.to_nondim(bvp)
                 st = _structure_from_guess(g, bvp)
-            except ValueError as e:
+            except Exception as e:      # noqa: BLE001 - a model's candidate: any failure skips it
                 if unusable is None:
                     raise
                 unusable.append(f"{g.source}: unusable guess ({e})")
@@ -331,14 +332,18 @@ def _challenge_if_slower_than_predicted(prob, warm, info, col_opts, options, t0)
     pred = info.get("predicted_tf")
     if not (pred and math.isfinite(pred) and warm.tf > pred * (1.0 + LOCAL_OPTIMUM_MARGIN)):
         return warm
+    rec = info["local_optimum_check"] = {"predicted_tf": float(pred), "tf": float(warm.tf), "won": False}
+    left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
+    if left < CHALLENGE_MIN_BUDGET:     # a verified answer is in hand: the budget comes first
+        rec["skipped"] = f"time_budget: {max(left, 0.0):.3g} s left, the collocation route needs {CHALLENGE_MIN_BUDGET:g} s"
+        return warm
     rest = {k: v for k, v in options.items() if k != "warm_budget"}
-    rest["time_budget"] = max(0.5, float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0))
+    rest["time_budget"] = left
     ch = _solve_auto(prob, None, col_opts, rest)
-    rec = info["local_optimum_check"] = {"predicted_tf": float(pred), "tf": float(warm.tf),
-                                         "challenger_tf": float(ch.tf) if ch.success else None,
-                                         "challenger_exact": bool(ch.success and ch.exact), "won": False}
+    rec.update(challenger_tf=float(ch.tf) if ch.success else None, challenger_exact=bool(ch.success and ch.exact))
     if ch.success and ch.exact and ch.tf < warm.tf * (1.0 - 1e-9):
         rec["won"] = True
+        info["succeeded"] = False      # the answer is the challenger's, not the learned guess's
         ch.route = (f"learned guess ({warm.guess}) gave {warm.tf:.9g}, {warm.tf / pred - 1:.1%} above the model's "
                     f"predicted {pred:.9g} → the collocation route found a faster extremal: {ch.route}")
         ch.message = f"{ch.message} Faster than the learned guess's extremal ({warm.tf:.9g})."
@@ -473,7 +478,9 @@ def _warm_start(prob, method, warm_start, options, split=False):
         raise ValueError(f"warm_start: {name}.guess() returned {type(g).__name__}, expected a solvers.Guess")
     later = None
     t_inf = getattr(g, "inference_s", getattr(model, "last_inference_s", None))
-    predicted_tf = float(g.tf)        # the model's first guess: its prediction of the optimal time
+    # a model that predicts the optimal final time says so (``Guess.predicted_tf``: the shipped
+    # full-attitude network); a neighbour's time or a user model's guess is not such a prediction
+    predicted_tf = getattr(g, "predicted_tf", None)
     if split:
         g, later = _split_continuation(g)
     t_guess = time.perf_counter() - t0
@@ -491,10 +498,15 @@ def _warm_start(prob, method, warm_start, options, split=False):
     else:
         sol = _guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
-            "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0,
-            "predicted_tf": predicted_tf}
+            "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
+    if predicted_tf is not None:
+        info["predicted_tf"] = float(predicted_tf)
     if t_warm:
         info["warm_up_s"] = t_warm
+    if isinstance(warm_start, str) and warm_start in ("default", "pointing-cones"):
+        why = warmstart.table_error("pointing-cones" if prob.cones else "full-attitude")
+        if why:         # a damaged shipped table: the network alone gave the guess
+            info["table_error"] = why
     if later is not None:
         info["deferred"] = 1 + len(later.candidates)
     sol.warm_start = info

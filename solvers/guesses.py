@@ -60,7 +60,10 @@ class Guess:
                 raise ValueError("guess.switch_times: expected a list of 3 arrays (one per axis)")
             self.switch_times = [np.asarray(s, dtype=float).ravel() for s in self.switch_times]
         if self.u_first is not None:
-            self.u_first = np.sign(np.asarray(self.u_first, dtype=float))
+            u = np.asarray(self.u_first, dtype=float)
+            if u.shape != (3,) or not np.all(np.isfinite(u)):
+                raise ValueError(f"guess.u_first: expected 3 finite signs (one per axis), got shape {u.shape}")
+            self.u_first = np.sign(u)
         if self.touches is not None:
             rows = []
             for k, t in enumerate(self.touches):
@@ -80,27 +83,38 @@ class Guess:
         """This guess followed by its candidates (deferred ones computed now)."""
         return list(self.iter_all())
 
-    def iter_all(self):
+    def iter_all(self, errors=None):
         """This guess followed by its candidates, a deferred candidate (a function of no
         arguments returning a ``Guess`` or ``None``) computed only when it is reached: a solver
         that converges on the first guess never pays for the later ones. Its result is kept on
         this guess (``None``: skipped); ``candidates`` itself is not changed, so a guess shared
         between calls or threads stays intact (a deferred function may then run more than
         once: it must not have side effects that matter). A guess holding functions cannot be
-        pickled (sent to a process pool); ``all()`` gives the plain list."""
+        pickled (sent to a process pool); ``all()`` gives the plain list.
+
+        ``errors``: ``None`` (a candidate that is not a ``Guess``, or a deferred one that raises
+        or returns something else, is an error), or a list to which such candidates are added
+        as ``"candidates[k]: reason"`` and skipped (a model's guess: one bad candidate must not
+        stop the solve)."""
         yield self
         memo = self.__dict__.setdefault("_deferred", {})
         for k, c in enumerate(list(self.candidates)):
             if not isinstance(c, Guess):
-                if not callable(c):
-                    raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
-                                     f"got {type(c).__name__}")
-                if k not in memo:
-                    made = c()
-                    if made is not None and not isinstance(made, Guess):
-                        raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
-                                         f"{type(made).__name__}, expected a Guess or None")
-                    memo[k] = made
+                try:
+                    if not callable(c):
+                        raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
+                                         f"got {type(c).__name__}")
+                    if k not in memo:
+                        made = c()
+                        if made is not None and not isinstance(made, Guess):
+                            raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
+                                             f"{type(made).__name__}, expected a Guess or None")
+                        memo[k] = made
+                except Exception as e:      # noqa: BLE001 - any failure of a model's code
+                    if errors is None:
+                        raise
+                    errors.append(f"candidates[{k}]: {type(e).__name__}: {e}"[:300])
+                    memo[k] = None
                 c = memo[k]
                 if c is None:           # nothing to add (e.g. the same as an earlier candidate)
                     continue

@@ -1,6 +1,7 @@
 """The shipped full-attitude warm start: the network, then the nearest tabled solutions."""
 import json
 import os
+import time
 
 import numpy as np
 import pytest
@@ -37,11 +38,12 @@ def test_the_default_warm_start_is_the_network_then_the_table():
     p = problem_for(GenerationSpec("full-attitude", seed=20261122), 0)
     g = m.guess(p)
     src = _sources(g)
-    # the network's guess, its propagated structure (deferred: a callable), the three nearest
-    # solutions, five more (deferred), and last the network's costates alone
-    assert src[0] == "learned" and callable(src[1])
-    assert src[2:5] == ["nearest-neighbour[0]", "nearest-neighbour[1]", "nearest-neighbour[2]"]
-    assert all(callable(c) for c in src[5:10]) and src[10] == "learned-costate" and len(src) == 11
+    # the network's guess, its propagated structure, the three nearest solutions and five more
+    # (all deferred: callables), and last the network's costates alone
+    assert src[0] == "learned" and all(callable(c) for c in src[1:10])
+    assert src[10] == "learned-costate" and len(src) == 11
+    made = [c.source for c in g.iter_all()]
+    assert made[2:5] == ["nearest-neighbour[0]", "nearest-neighbour[1]", "nearest-neighbour[2]"]
     assert g.inference_s < 0.05
     assert m.covers(p) is None and "rate_max" in m.covers(p.replace(rate_max=0.5))
 
@@ -177,9 +179,10 @@ def test_auto_challenges_a_learned_answer_much_slower_than_predicted():
     # held-out 789: the network's guess fails and the 2nd nearest solution converges to a local
     # extremal 1.6 % above the network's predicted time (1.6575 vs 1.6311); the collocation route
     # finds the optimum, 1.2 % faster
-    s = solve(_held_out(789))
+    s = solve(_held_out(789), warm_budget=5.0)      # (the 2nd neighbour is reached on a loaded machine too)
     rec = s.warm_start["local_optimum_check"]
     assert rec["won"] and rec["tf"] == pytest.approx(1.65752232, rel=1e-7)
+    assert s.warm_start["succeeded"] is False        # the answer is the challenger's
     assert rec["tf"] > rec["predicted_tf"] * 1.015
     assert s.success and s.exact and s.tf == pytest.approx(1.63743643, rel=1e-7) and s.guess == "collocation"
     assert "above the model's predicted" in s.route
@@ -187,3 +190,74 @@ def test_auto_challenges_a_learned_answer_much_slower_than_predicted():
     s0 = solve(_held_out(0))
     assert s0.guess == "learned" and "local_optimum_check" not in s0.warm_start
     assert s0.tf <= s0.warm_start["predicted_tf"] * 1.015
+
+
+def test_the_challenge_respects_the_time_budget():
+    solve(_held_out(0))                  # the compiled kernels loaded: the warm stage takes ~50 ms
+    t0 = time.perf_counter()
+    s = solve(_held_out(789), time_budget=0.3, warm_budget=0.25)
+    # the neighbour's local extremal, kept: no time for the collocation route
+    rec = s.warm_start["local_optimum_check"]
+    assert s.success and s.warm_start["succeeded"] and s.tf == pytest.approx(1.65752232, rel=1e-7)
+    assert rec["skipped"].startswith("time_budget") and "challenger_tf" not in rec
+    assert time.perf_counter() - t0 < 0.6
+
+
+def test_only_a_model_that_predicts_the_time_is_challenged():
+    # the table alone as the warm start: a neighbour's time is not a prediction
+    s = solve(_held_out(789), warm_start=load_model(DEFAULT_TABLE_FILE))
+    assert "predicted_tf" not in s.warm_start and "local_optimum_check" not in s.warm_start
+    assert default_model().guess(_held_out(789)).predicted_tf == pytest.approx(1.63115, rel=1e-4)
+
+
+def test_a_damaged_shipped_table_leaves_the_network_and_is_recorded(tmp_path, monkeypatch):
+    import solvers.warmstart as ws
+    bad = tmp_path / "full-attitude.nn.npz"
+    bad.write_bytes(open(DEFAULT_TABLE_FILE, "rb").read()[:1000])
+    monkeypatch.setattr(ws, "DEFAULT_TABLE_FILE", str(bad))
+    m = ws.default_warm_start()
+    assert m is default_model()
+    s = solve(_held_out(0))
+    assert s.success and s.guess == "learned" and "not a readable" in s.warm_start["table_error"]
+    assert ws.default_warm_start() is default_model()     # not read again while the file is unchanged
+
+
+def test_bad_model_candidates_are_failed_candidates_not_exceptions():
+    from solvers import Guess
+    r = _exact()[3]
+
+    def boom():
+        raise RuntimeError("model bug")
+
+    class Bad:
+        name = "bad"
+
+        def __init__(self, extra):
+            self.extra = extra
+
+        def covers(self, problem):
+            return None
+
+        def guess(self, problem):
+            g = Guess(np.array([0, 1, 0, 0, 1, 1, 1.0]), 0.3, [[0.15], [0.15], [0.15]], [1, 1, 1], source="learned")
+            g.candidates = list(self.extra)
+            return g
+
+    for extra in ([boom], [lambda: 42], [lambda: Guess(np.ones(7), 1.0, [[0.5], [], []], [1, 1], source="x")]):
+        for method in ("indirect", "auto"):
+            s = solve(r["problem"], method=method, warm_start=Bad(extra))
+            assert s.success and s.warm_start["succeeded"] is False, (extra, method)
+    # a deferred candidate with malformed signs: skipped, and the reason is in the route
+    s = solve(r["problem"], method="indirect", warm_start=Bad([lambda: Guess(np.ones(7), 1.0, u_first=[1, 1])]))
+    assert s.success and "u_first" in s.route
+
+
+def test_cli_says_when_the_collocation_route_beat_the_learned_guess(tmp_path, capsys):
+    from training.cli import main
+    path = tmp_path / "p789.json"
+    path.write_text(json.dumps(_held_out(789).to_dict()))
+    solve(_held_out(0))       # kernels loaded: the 1 s warm budget reaches the 2nd neighbour
+    assert main(["solve", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "above the predicted time; the collocation route found a faster extremal" in out
+    assert "guess         collocation" in out

@@ -78,10 +78,35 @@ def _ensemble(network, table, kind, singular=None):
 
 def _with_table(network, table_file, kind, singular=None):
     """``network`` with the shipped neighbour table ``table_file`` (one ensemble object per
-    set of loaded files, cached), or ``network`` alone if no table is shipped."""
-    if not os.path.exists(table_file):
+    set of loaded files, cached), or ``network`` alone if no table is shipped or the file is
+    damaged (the network still gives its guess; ``table_error`` says why the table is missing,
+    and ``solve`` records it in ``warm_start["table_error"]``)."""
+    try:
+        st = os.stat(table_file)
+    except OSError:
         return network
-    return _ensemble(network, load_model(table_file), kind, singular)
+    key = (st.st_mtime_ns, st.st_size)
+    bad = _TABLE_ERRORS.get(table_file)
+    if bad is not None and bad[0] == key:      # the same damaged file: not read again
+        return network
+    try:
+        table = load_model(table_file)
+    except (OSError, ValueError) as e:
+        _TABLE_ERRORS[table_file] = (key, f"{type(e).__name__}: {e}"[:300])
+        return network
+    _TABLE_ERRORS.pop(table_file, None)
+    return _ensemble(network, table, kind, singular)
+
+
+_TABLE_ERRORS = {}    # path → ((mtime, size), reason) of a shipped table that failed to load
+
+
+def table_error(model_file_kind="full-attitude"):
+    """Why the shipped neighbour table of ``"full-attitude"`` or ``"pointing-cones"`` was not
+    used on the last load, or ``None``."""
+    path = DEFAULT_TABLE_FILE if model_file_kind == "full-attitude" else DEFAULT_CONE_TABLE_FILE
+    bad = _TABLE_ERRORS.get(path)
+    return None if bad is None else bad[1]
 
 
 @functools.lru_cache(maxsize=1)
@@ -146,5 +171,5 @@ def resolve(warm_start, problem=None):
 __all__ = ["FEATURE_NAMES", "N_FEATURES", "CanonicalForm", "canonical_form", "features",
            "solution_from_canonical", "solution_to_canonical", "FORMAT", "FORMAT_VERSION",
            "ModelFileError", "WarmStartModel", "NearestNeighbourModel", "load_model", "default_model",
-           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_TABLE_FILE", "default_warm_start", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
+           "resolve", "DEFAULT_MODEL_FILE", "DEFAULT_TABLE_FILE", "default_warm_start", "table_error", "DEFAULT_CONE_MODEL_FILE", "DEFAULT_CONE_TABLE_FILE",
            "default_cone_model", "default_singular_table", "DEFAULT_SINGULAR_TABLE_FILE"]

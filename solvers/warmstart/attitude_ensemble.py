@@ -20,7 +20,9 @@ are, in order:
    ``method="auto"`` runs it only after collocation, ``api._split_continuation``).
 
 Files: the network ``full-attitude.npz`` and, next to it, the table ``full-attitude.nn.npz``
-(the network's own training solutions; ``training.warmstart.evaluate.build_nn``).
+(the network's own training solutions, written by ``slew train --export``:
+``training.warmstart.train.export_attitude_table``). Without a ``singular_table`` there are no
+further neighbours (3 is skipped).
 """
 from __future__ import annotations
 
@@ -51,14 +53,16 @@ class AttitudeEnsembleWarmStart:
         self.n_neighbours, self.n_more = int(n_neighbours), int(n_more)
         self.singular_table = singular_table
         n = int(table.X.shape[0])
-        self.name = f"full-attitude (the network, then {self.n_neighbours} nearest of {n:,} solutions)"
+        more = f" (+{self.n_more} where not singular)" if self.n_more and singular_table is not None else ""
+        self.name = f"full-attitude (the network, then {self.n_neighbours}{more} nearest of {n:,} solutions)"
         self.domain = network.domain
         self.card = network.card
         self.last_inference_s = float("nan")
 
     def covers(self, problem):
-        problem = SlewProblem.from_dict(problem)
-        return self.network.covers(problem) or self.table.covers(problem)
+        """``None`` where the network covers ``problem`` (the table adds candidates where it
+        covers it too), else the network's reason."""
+        return self.network.covers(SlewProblem.from_dict(problem))
 
     def guess_or_reason(self, problem):
         problem = SlewProblem.from_dict(problem)
@@ -66,43 +70,47 @@ class AttitudeEnsembleWarmStart:
         g, why = self.network.guess_or_reason(problem)
         if why:
             return None, why
-        why = self.table.covers(problem)
-        if why:
-            return None, why
-        nn = self.table.guess(problem, k=self.n_neighbours)
-        neighbours = [nn] + list(nn.candidates)
-        nn.candidates = []
+        if self.table.covers(problem):    # a network that covers more than its table: its guess alone
+            g.inference_s = self.last_inference_s = time.perf_counter() - t0
+            return g, None
         # the network's structured candidates (the guess and, deferred, its propagated
-        # structure) keep their place; the neighbours go before its costate-only candidate
+        # structure) keep their place; the neighbours go before its costate-only candidate. They
+        # are deferred too: where the network's guess converges (8 in 10) the table is not read
         structured = [c for c in g.candidates if callable(c) or c.switch_times is not None]
         costate_only = [c for c in g.candidates if not callable(c) and c.switch_times is None]
-        g.candidates = structured + neighbours + self._more(problem) + costate_only
+        g.candidates = structured + self._neighbours(problem) + costate_only
         g.inference_s = self.last_inference_s = time.perf_counter() - t0
         return g, None
 
-    def _more(self, problem):
-        """``n_more`` deferred candidates: the next nearest solutions, computed only when reached
-        (after the first neighbours failed), and only if the singular table does not find the
-        problem among singular ones (there, no neighbour converges, and the table's own route
-        follows). Where the table votes against, the alternative to these few milliseconds is
-        collocation."""
-        if not self.n_more or self.singular_table is None:
-            return []
+    def _neighbours(self, problem):
+        """Deferred candidates: the ``n_neighbours`` nearest tabled solutions, then ``n_more``
+        further ones only if the singular table does not find the problem among singular ones
+        (there, no neighbour converges, and the table's own route follows; where it votes
+        against, the alternative to these few milliseconds is collocation). One table query
+        for the first, one vote and one wider query for the others, each when first reached."""
         memo = {}
 
-        def rows():
-            if "rows" not in memo:
-                memo["rows"] = []
+        def nearest():
+            if "near" not in memo:
+                nn = self.table.guess(problem, k=self.n_neighbours)
+                memo["near"] = [nn] + list(nn.candidates)
+            return memo["near"]
+
+        def further():
+            if "far" not in memo:
+                memo["far"] = []
+                if not self.n_more or self.singular_table is None:
+                    return memo["far"]
                 try:
                     share, _ = self.singular_table.query(problem)
-                except ValueError:     # the singular table does not cover it: no vote, no more
-                    return memo["rows"]
+                except (OSError, ValueError, IndexError):    # not covered, or a damaged file:
+                    return memo["far"]                       # no vote, no more neighbours
                 if share < self.singular_table.vote:
                     g = self.table.guess(problem, k=self.n_neighbours + self.n_more)
-                    memo["rows"] = list(g.candidates)[self.n_neighbours - 1:]
-            return memo["rows"]
+                    memo["far"] = list(g.candidates)[self.n_neighbours - 1:]
+            return memo["far"]
 
-        def nth(j):
+        def nth(rows, j):
             def make():
                 r = rows()
                 if j >= len(r):
@@ -111,7 +119,8 @@ class AttitudeEnsembleWarmStart:
                 c.candidates = []
                 return c
             return make
-        return [nth(j) for j in range(self.n_more)]
+        n_more = self.n_more if self.singular_table is not None else 0
+        return [nth(nearest, j) for j in range(self.n_neighbours)] + [nth(further, j) for j in range(n_more)]
 
     def guess(self, problem):
         g, why = self.guess_or_reason(problem)
