@@ -215,7 +215,7 @@ def summary_lines(sol, prob, warm=None):
             lo = ws.get("local_optimum_check") or {}
             res = ("its continuation candidate won, after collocation" if ws.get("after_collocation") else
                    f"its guess converged to {lo['tf']:.9g}, {lo['tf'] / lo['predicted_tf'] - 1:.1%} above the "
-                   f"predicted time; the collocation route found a faster extremal" if lo.get("won") else
+                   f"predicted time; the collocation route found a faster answer" if lo.get("won") else
                    "its guess won" if ws.get("succeeded") else "its guess failed, classical route used")
             L.append(f"warm start    {ws.get('model')}: inference {1e6 * ws.get('inference_s', 0):.0f} µs, {res}")
         else:
