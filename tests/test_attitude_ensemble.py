@@ -277,3 +277,11 @@ def test_a_faster_switch_time_slew_beats_a_local_extremal():
     assert s.success and s.method == "switch-time" and not s.exact
     assert s.tf + s.tf_tol < rec["tf"] and s.tf == pytest.approx(2.3902, rel=1e-3)
     assert "not an extremal" in s.route and s.warm_start["succeeded"] is False
+
+
+def test_evaluate_reports_the_network_and_the_table_query_apart(tmp_path):
+    from training.warmstart.evaluate import evaluate
+    s = evaluate(n=2, baseline_n=0, workers=1, out=str(tmp_path), progress_bar=False)
+    assert s["learned"]["n"] == 2 and 0 < s["inference_s_median"] < 0.01 and 0 < s["table_query_s_median"] < 0.01
+    report = open(tmp_path / "report.md").read()
+    assert "queried only when its candidates are reached" in report and "The table's query" in report
