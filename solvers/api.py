@@ -62,7 +62,7 @@ from .verify import DENSE_STEPS, make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
-            "eps_min", "rtol", "atol", "warm_budget", "singular_table"}
+            "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check"}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
 # converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
@@ -74,8 +74,9 @@ REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation whe
 # answer (three rounds of 15-250 ms each on held-out singular problems)
 BANG_BANG_BUDGET = 1.0
 # auto: a warm-start extremal this much slower than the model's predicted final time is
-# challenged by the collocation route (``_challenge_if_slower_than_predicted``)
+# challenged by the collocation route (``_challenge_learned_answer``), and so is one near a half turn
 LOCAL_OPTIMUM_MARGIN = 0.015
+HALF_TURN_MARGIN_DEG = 10.0
 CHALLENGE_MIN_BUDGET = 1.0   # s: collocation's own floor (``_solve_auto``); with less left, no challenge
 # s: the singular table's switch-time optimisations (all its sequences); then, only when the
 # answer's sequence is a KKT point, the exact solver from its KKT costates (its own budget)
@@ -229,6 +230,10 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     default model, when its guess fails and the shipped singular table finds the problem among
     singular ones, answers with the near singular answers' sequences, optimised (milliseconds,
     no collocation; ``_singular_table_route``); False: the collocation route instead.
+    ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
+    learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
+    predicted time, or a slew within 10° of a half turn; ``_challenge_learned_answer``) and keeps
+    the faster answer; False: the learned answer at once (milliseconds, for on-board use).
 
     A verified extremal slower than the eigenaxis slew of the same problem (the
     baseline, ``SlewSolution.baseline_tf``) is a local optimum: it is returned with
@@ -250,6 +255,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     use_table = options.pop("singular_table", True)
     if not isinstance(use_table, bool):
         raise ValueError(f"singular_table: expected True or False, got {use_table!r}")
+    check_local = options.pop("local_optimum_check", True)
+    if not isinstance(check_local, bool):
+        raise ValueError(f"local_optimum_check: expected True or False, got {check_local!r}")
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
@@ -276,8 +284,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         split = method == "auto" and switch_time_applies(prob)
         warm, info, later = _warm_start(prob, method, warm_start, options, split=split)
         if warm is not None and warm.success:
-            if method == "auto":
-                warm = _challenge_if_slower_than_predicted(prob, warm, info, col_opts, options, t0)
+            if method == "auto" and check_local:
+                warm = _challenge_learned_answer(prob, warm, info, col_opts, options, t0)
             warm.wall_time = time.perf_counter() - t0
             return warm
     rest = {k: v for k, v in options.items() if k != "warm_budget"}
@@ -321,19 +329,33 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     return sol
 
 
-def _challenge_if_slower_than_predicted(prob, warm, info, col_opts, options, t0) -> SlewSolution:
-    """``auto``, when the warm start's verified extremal is more than ``LOCAL_OPTIMUM_MARGIN``
-    slower than the final time its model predicted (``info["predicted_tf"]``): likely a local
-    optimum reached from a neighbour's solution, so the collocation route runs too, and its
-    answer replaces it if faster (an exact extremal; or a verified slew that is not one, such as
-    a singular problem's switch-time answer, faster beyond its ``tf_tol``). The shipped network predicts the optimal time
-    to 0.1 % (median); on 1,948 exact answers of held-out and audit problems, 10 were more than
-    1.5 % above it, and 2 of those were local optima 4.9 % and 1.2 % slower than the best known.
-    ``info["local_optimum_check"]`` records the check."""
+def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSolution:
+    """``auto``, where the warm start's verified extremal is likely a local optimum, the
+    collocation route runs too, and its answer replaces it if faster (an exact extremal; or a
+    verified slew that is not one, such as a singular problem's switch-time answer, faster
+    beyond its ``tf_tol``). Two signs (only for a model that predicts the optimal time,
+    ``info["predicted_tf"]``):
+
+    * the answer is more than ``LOCAL_OPTIMUM_MARGIN`` slower than that prediction (a neighbour's
+      solution led to another extremal). The shipped network predicts the optimal time to 0.1 %
+      (median); on 1,948 exact answers of held-out and audit problems, 10 were more than 1.5 %
+      above it, and 2 of those were local optima 4.9 % and 1.2 % slower than the best known;
+    * a slew within ``HALF_TURN_MARGIN_DEG`` of 180°, where the short and the long way round and
+      their mirror images are nearly degenerate extremals that the network cannot tell apart: on
+      123 such held-out and audit problems the warm start's answer was more than 1e-4 slower
+      than the best known on 8 (up to 1.2 %), the collocation route on none.
+
+    ``info["local_optimum_check"]`` records the check; ``local_optimum_check=False`` turns it off."""
     pred = info.get("predicted_tf")
-    if not (pred and math.isfinite(pred) and warm.tf > pred * (1.0 + LOCAL_OPTIMUM_MARGIN)):
+    if not (pred and math.isfinite(pred)):
         return warm
-    rec = info["local_optimum_check"] = {"predicted_tf": float(pred), "tf": float(warm.tf), "won": False}
+    slow = warm.tf > pred * (1.0 + LOCAL_OPTIMUM_MARGIN)
+    half_turn = (prob.qf is not None and prob.is_rest_to_rest
+                 and math.degrees(prob.slew_angle) > 180.0 - HALF_TURN_MARGIN_DEG)
+    if not (slow or half_turn):
+        return warm
+    rec = info["local_optimum_check"] = {"predicted_tf": float(pred), "tf": float(warm.tf), "won": False,
+                                         "reason": "slower than predicted" if slow else "near a half turn"}
     left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
     if left < CHALLENGE_MIN_BUDGET:     # a verified answer is in hand: the budget comes first
         rec["skipped"] = f"time_budget: {max(left, 0.0):.3g} s left, the collocation route needs {CHALLENGE_MIN_BUDGET:g} s"
@@ -350,8 +372,9 @@ def _challenge_if_slower_than_predicted(prob, warm, info, col_opts, options, t0)
         rec["won"] = True
         info["succeeded"] = False      # the answer is the challenger's, not the learned guess's
         what = "a faster extremal" if ch.exact else f"a faster slew ({ch.method}, not an extremal)"
-        ch.route = (f"learned guess ({warm.guess}) gave {warm.tf:.9g}, {warm.tf / pred - 1:.1%} above the model's "
-                    f"predicted {pred:.9g} → the collocation route found {what}: {ch.route}")
+        why = (f"{warm.tf / pred - 1:.1%} above the model's predicted {pred:.9g}" if slow else
+               f"a slew of {math.degrees(prob.slew_angle):.2f}°, near a half turn")
+        ch.route = f"learned guess ({warm.guess}) gave {warm.tf:.9g}, {why} → the collocation route found {what}: {ch.route}"
         ch.message = f"{ch.message} Faster than the learned guess's extremal ({warm.tf:.9g}), a local optimum."
         ch.warm_start = info
         ch.nit += warm.nit
