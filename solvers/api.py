@@ -350,20 +350,28 @@ def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSo
     if not (pred and math.isfinite(pred)):
         return warm
     slow = warm.tf > pred * (1.0 + LOCAL_OPTIMUM_MARGIN)
-    half_turn = (prob.qf is not None and prob.is_rest_to_rest
-                 and math.degrees(prob.slew_angle) > 180.0 - HALF_TURN_MARGIN_DEG)
+    # (measured on per-axis rest-to-rest slews without rate limits, the shipped model's family)
+    half_turn = (prob.qf is not None and prob.is_rest_to_rest and math.isinf(prob.torque_norm)
+                 and prob.rate_max is None and math.degrees(prob.slew_angle) > 180.0 - HALF_TURN_MARGIN_DEG)
     if not (slow or half_turn):
         return warm
+    reason = " and ".join(r for r, on in (("slower than predicted", slow), ("near a half turn", half_turn)) if on)
     rec = info["local_optimum_check"] = {"predicted_tf": float(pred), "tf": float(warm.tf), "won": False,
-                                         "reason": "slower than predicted" if slow else "near a half turn"}
+                                         "reason": reason}
     left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
     if left < CHALLENGE_MIN_BUDGET:     # a verified answer is in hand: the budget comes first
         rec["skipped"] = f"time_budget: {max(left, 0.0):.3g} s left, the collocation route needs {CHALLENGE_MIN_BUDGET:g} s"
         return warm
     rest = {k: v for k, v in options.items() if k != "warm_budget"}
     rest["time_budget"] = left
-    ch = _solve_auto(prob, None, col_opts, rest)
-    rec.update(challenger_tf=float(ch.tf) if ch.success else None, challenger_exact=bool(ch.success and ch.exact))
+    t_ch = time.perf_counter()
+    try:
+        ch = _solve_auto(prob, None, col_opts, rest)
+    except Exception as e:   # noqa: BLE001 - the verified answer in hand stands; the failure is recorded
+        rec.update(error=f"{type(e).__name__}: {e}"[:300], time_s=time.perf_counter() - t_ch)
+        return warm
+    rec.update(challenger_tf=float(ch.tf) if ch.success else None, challenger_exact=bool(ch.success and ch.exact),
+               time_s=time.perf_counter() - t_ch)
     # an exact extremal that is faster; or a verified answer that is not an extremal (a singular
     # problem's switch-time answer) but faster beyond its own tf_tol: the learned extremal was a
     # local optimum, and the faster feasible slew is the better answer
@@ -373,7 +381,7 @@ def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSo
         info["succeeded"] = False      # the answer is the challenger's, not the learned guess's
         what = "a faster extremal" if ch.exact else f"a faster slew ({ch.method}, not an extremal)"
         why = (f"{warm.tf / pred - 1:.1%} above the model's predicted {pred:.9g}" if slow else
-               f"a slew of {math.degrees(prob.slew_angle):.2f}°, near a half turn")
+               f"a slew of {math.degrees(prob.slew_angle):.2f}°, near a half turn, where it may be a local optimum")
         ch.route = f"learned guess ({warm.guess}) gave {warm.tf:.9g}, {why} → the collocation route found {what}: {ch.route}"
         ch.message = f"{ch.message} Faster than the learned guess's extremal ({warm.tf:.9g}), a local optimum."
         ch.warm_start = info
@@ -383,6 +391,10 @@ def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSo
         return ch
     warm.nit += ch.nit
     warm.nfev += ch.nfev
+    seen = f"{ch.tf:.9g}" + ("" if ch.exact else f" ({ch.method})") if ch.success else "no answer"
+    warm.route = f"{warm.route} (checked, {reason}: the collocation route gave {seen}, not faster)"
+    if ch.success and ch.exact:
+        warm.candidates_tf = sorted(set(warm.candidates_tf or []) | {round(ch.tf, 9)})
     return warm
 
 

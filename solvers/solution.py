@@ -62,7 +62,9 @@ class SlewSolution:
     rest-to-rest problems); ``verification`` (dict of checks); ``exact`` (a verified exact
     extremal, not an approximation: see the property); ``warm_start`` (the learned
     warm start: ``model``, ``covered`` or the ``reason`` it was not, ``succeeded``,
-    ``candidates`` tried, ``time_s`` spent on it, ``inference_s``).
+    ``candidates`` tried, ``time_s`` spent on it, ``inference_s``; with the shipped model also
+    ``predicted_tf`` and, when ``auto`` checked its answer against the collocation route,
+    ``local_optimum_check``; ``table_error`` if a shipped table could not be read).
     """
     success: bool
     status: int

@@ -256,7 +256,7 @@ def test_cli_says_when_the_collocation_route_beat_the_learned_guess(tmp_path, ca
     solve(_held_out(789), warm_budget=5.0)    # kernels loaded: the 1 s warm budget reaches the 2nd neighbour
     assert main(["solve", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "above the predicted time; the collocation route found a faster answer" in out
+    assert "above the predicted time, likely a local optimum); the collocation route found a faster answer" in out
     assert "guess         collocation" in out
 
 
@@ -301,3 +301,31 @@ def test_near_a_half_turn_auto_also_runs_the_collocation_route():
     assert fast.exact and fast.tf == pytest.approx(2.56494756, rel=1e-7)
     with pytest.raises(ValueError, match="local_optimum_check"):
         solve(p, local_optimum_check="yes")
+
+
+def test_a_half_turn_check_that_confirms_the_learned_answer_leaves_a_trace(tmp_path, capsys):
+    # held-out 65, a 178° slew: the network's own extremal is the best the collocation route finds
+    s = solve(_held_out(65), warm_budget=5.0)
+    rec = s.warm_start["local_optimum_check"]
+    assert rec["reason"] == "near a half turn" and not rec["won"] and rec["time_s"] > 0
+    assert s.guess == "learned" and s.warm_start["succeeded"] and s.exact
+    assert rec["challenger_exact"] and rec["challenger_tf"] == pytest.approx(s.tf, rel=1e-8)
+    assert "(checked, near a half turn: the collocation route gave" in s.route
+    # and the CLI says why a half-turn challenger won (held-out 623)
+    from training.cli import main
+    path = tmp_path / "p623.json"
+    path.write_text(json.dumps(_held_out(623).to_dict()))
+    assert main(["solve", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "(a slew near a half turn, likely a local optimum); the collocation route found a faster answer" in out
+
+
+def test_a_challenger_that_raises_leaves_the_verified_answer(monkeypatch):
+    import solvers.api as api
+
+    def broken(*a, **k):
+        raise RuntimeError("collocation broke")
+    monkeypatch.setattr(api, "_solve_auto", broken)
+    s = solve(_held_out(623), warm_budget=5.0)
+    rec = s.warm_start["local_optimum_check"]
+    assert s.success and s.guess == "nearest-neighbour[0]" and "collocation broke" in rec["error"]

@@ -213,10 +213,14 @@ def summary_lines(sol, prob, warm=None):
                      f"(inference {1e6 * ws.get('inference_s', 0):.0f} µs): {res}")
         elif ws.get("covered"):
             lo = ws.get("local_optimum_check") or {}
-            res = ("its continuation candidate won, after collocation" if ws.get("after_collocation") else
-                   f"its guess converged to {lo['tf']:.9g}, {lo['tf'] / lo['predicted_tf'] - 1:.1%} above the "
-                   f"predicted time; the collocation route found a faster answer" if lo.get("won") else
-                   "its guess won" if ws.get("succeeded") else "its guess failed, classical route used")
+            if lo.get("won"):
+                why = (f"{lo['tf'] / lo['predicted_tf'] - 1:.1%} above the predicted time"
+                       if lo.get("reason", "").startswith("slower") else "a slew near a half turn")
+                res = (f"its guess converged to {lo['tf']:.9g} ({why}, likely a local optimum); the collocation "
+                       f"route found a faster answer")
+            else:
+                res = ("its continuation candidate won, after collocation" if ws.get("after_collocation") else
+                       "its guess won" if ws.get("succeeded") else "its guess failed, classical route used")
             L.append(f"warm start    {ws.get('model')}: inference {1e6 * ws.get('inference_s', 0):.0f} µs, {res}")
         else:
             L.append(f"warm start    {ws.get('model')}: not used ({ws.get('reason')})")
