@@ -318,6 +318,10 @@ def test_a_half_turn_check_that_confirms_the_learned_answer_leaves_a_trace(tmp_p
     assert main(["solve", str(path)]) == 0
     out = capsys.readouterr().out
     assert "(a slew near a half turn, likely a local optimum); the collocation route found a faster answer" in out
+    # --no-local-optimum-check: the learned answer at once
+    assert main(["solve", str(path), "--no-local-optimum-check", "--repeat", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "its guess won" in out and "guess         nearest-neighbour[0]" in out and "checked" not in out
 
 
 def test_a_challenger_that_raises_leaves_the_verified_answer(monkeypatch):

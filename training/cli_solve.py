@@ -71,6 +71,9 @@ def add_arguments(p):
                         "the pointing-cones warm start after its route and keeps a faster answer), 'pointing-cones' "
                         "(that warm start as the first guess, opt-in), 'none', or a model file "
                         "(.npz from 'slew train', .nn.npz nearest-neighbour table)")
+    p.add_argument("--no-local-optimum-check", dest="local_optimum_check", action="store_false", default=True,
+                   help="auto: return the learned guess's extremal at once, without running the collocation route "
+                        "where it may be a local optimum (well above the predicted time, or near a half turn)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
                         "(the first call in a process also loads compiled code; default 3, 0 to skip)")
@@ -100,6 +103,8 @@ def _solve_options(args):
             opts[name] = v
     if args.seed is not None:
         opts["seed"] = args.seed
+    if not getattr(args, "local_optimum_check", True):
+        opts["local_optimum_check"] = False
     ws = getattr(args, "warm_start", "default")
     if ws in (None, "none", "None"):
         opts["warm_start"] = None
