@@ -384,11 +384,7 @@ def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSo
                f"a slew of {math.degrees(prob.slew_angle):.2f}°, near a half turn, where it may be a local optimum")
         ch.route = f"learned guess ({warm.guess}) gave {warm.tf:.9g}, {why} → the collocation route found {what}: {ch.route}"
         ch.message = f"{ch.message} Faster than the learned guess's extremal ({warm.tf:.9g}), a local optimum."
-        ch.warm_start = info
-        ch.nit += warm.nit
-        ch.nfev += warm.nfev
-        ch.candidates_tf = sorted({round(warm.tf, 9), round(ch.tf, 9)} | set(getattr(ch, "candidates_tf", None) or []))
-        return ch
+        return _replace_answer(ch, warm, info)
     warm.nit += ch.nit
     warm.nfev += ch.nfev
     seen = f"{ch.tf:.9g}" + ("" if ch.exact else f" ({ch.method})") if ch.success else "no answer"
@@ -646,14 +642,24 @@ def _cone_challenger(prob, sol, options, t0) -> SlewSolution:
     ch.route = (f"auto: the default route ({sol.route[:160]}) gave {was}; the pointing-cones warm start found a "
                 f"faster extremal → {ch.route}")
     ch.message = f"{ch.message} Faster than the default route's answer ({was})."
-    ch.warm_start = info
     ch.baseline_tf = sol.baseline_tf
-    ch.candidates_tf = sorted(set(list(getattr(sol, "candidates_tf", None) or [])
-                                  + ([round(sol.tf, 9)] if sol.success else []) + [round(ch.tf, 9)]))
-    ch.nit += sol.nit
-    ch.nfev += sol.nfev
+    ch = _replace_answer(ch, sol, info)
     ch.wall_time = time.perf_counter() - t0
     return ch
+
+
+def _replace_answer(new, old, info) -> SlewSolution:
+    """``new``, a challenger's faster answer, replaces ``old`` (the two challengers of ``auto``:
+    ``_challenge_learned_answer``, ``_cone_challenger``): the work of both is counted, the
+    final times both saw are in ``candidates_tf``, and the warm start's record goes with it."""
+    new.nit += old.nit
+    new.nfev += old.nfev
+    seen = set(new.candidates_tf or []) | set(old.candidates_tf or []) | {round(new.tf, 9)}
+    if old.success:
+        seen.add(round(old.tf, 9))
+    new.candidates_tf = sorted(seen)
+    new.warm_start = info
+    return new
 
 
 def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:

@@ -86,32 +86,31 @@ class AttitudeEnsembleWarmStart:
         """Deferred candidates: the ``n_neighbours`` nearest tabled solutions, then ``n_more``
         further ones only if the singular table does not find the problem among singular ones
         (there, no neighbour converges, and the table's own route follows; where it votes
-        against, the alternative to these few milliseconds is collocation). One table query
-        for the first, one vote and one wider query for the others, each when first reached."""
+        against, the alternative to these few milliseconds is collocation). One table query for
+        all of them and one vote, each when first reached (the network's guess has failed by then,
+        so mapping the further solutions back costs nothing that matters)."""
         memo = {}
+        n_more = self.n_more if self.singular_table is not None else 0
 
-        def nearest():
-            if "near" not in memo:
-                nn = self.table.guess(problem, k=self.n_neighbours)
-                memo["near"] = [nn] + list(nn.candidates)
-            return memo["near"]
+        def rows():
+            if "rows" not in memo:
+                nn = self.table.guess(problem, k=self.n_neighbours + n_more)
+                memo["rows"] = [nn] + list(nn.candidates)
+            return memo["rows"]
 
-        def further():
-            if "far" not in memo:
-                memo["far"] = []
-                if not self.n_more or self.singular_table is None:
-                    return memo["far"]
+        def further_wanted():
+            if "vote" not in memo:
                 try:
                     share, _ = self.singular_table.query(problem)
+                    memo["vote"] = share < self.singular_table.vote
                 except (OSError, ValueError, IndexError):    # not covered, or a damaged file:
-                    return memo["far"]                       # no vote, no more neighbours
-                if share < self.singular_table.vote:
-                    g = self.table.guess(problem, k=self.n_neighbours + self.n_more)
-                    memo["far"] = list(g.candidates)[self.n_neighbours - 1:]
-            return memo["far"]
+                    memo["vote"] = False                     # no vote, no more neighbours
+            return memo["vote"]
 
-        def nth(rows, j):
+        def nth(j):
             def make():
+                if j >= self.n_neighbours and not further_wanted():
+                    return None
                 r = rows()
                 if j >= len(r):
                     return None
@@ -119,8 +118,7 @@ class AttitudeEnsembleWarmStart:
                 c.candidates = []
                 return c
             return make
-        n_more = self.n_more if self.singular_table is not None else 0
-        return [nth(nearest, j) for j in range(self.n_neighbours)] + [nth(further, j) for j in range(n_more)]
+        return [nth(j) for j in range(self.n_neighbours + n_more)]
 
     def guess(self, problem):
         g, why = self.guess_or_reason(problem)

@@ -89,6 +89,15 @@ def training_arrays(paths, max_switches: int = 5, family=None) -> dict:
     return out
 
 
+def nearest_table(paths, max_switches=5, k=3):
+    """The exact solutions of ``paths`` as a ``NearestNeighbourModel`` (the nearest-neighbour
+    baseline of ``slew evaluate``, and the table shipped with the model)."""
+    from solvers.warmstart import NearestNeighbourModel
+    a = training_arrays(paths, max_switches)
+    return NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=k,
+                                 name=f"nearest-neighbour (k={k}, {a['X'].shape[0]} solutions)")
+
+
 def split(arrays: dict, val_fraction: float, seed: int):
     """Train/validation index arrays (seeded permutation)."""
     N = arrays["X"].shape[0]

@@ -139,7 +139,6 @@ def inference_time(model, family, seed, n=200):
     from solvers.warmstart.cone_features import cone_canonical_form
     from solvers.warmstart.cone_model import ConeWarmStartModel
     from solvers.warmstart.features import canonical_form
-    from training.generate import GenerationSpec, problem_for
     from solvers.warmstart.attitude_ensemble import AttitudeEnsembleWarmStart
     from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
     if isinstance(model, AttitudeEnsembleWarmStart):
@@ -159,48 +158,44 @@ def inference_time(model, family, seed, n=200):
         def infer(p):
             cf = canonical_form(p)
             model.predict_canonical(cf.x, cf.T_eig)
-    probs = [problem_for(GenerationSpec(family, seed=seed), i) for i in range(n)]
-    probs = [p for p in probs if model.covers(p) is None]
-    if not probs:
-        return math.nan
-    for p in probs:    # one warm-up pass: first calls load compiled code, the CPU clocks up
-        infer(p)
-    ts = []
-    for p in probs:
-        t0 = time.perf_counter()
-        infer(p)
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+    return _median_time(infer, model, family, seed, n)
 
 
 def table_query_time(model, family, seed, n=200):
     """Median seconds of the ensemble table's nearest query (canonical form included)."""
     from solvers.warmstart.features import canonical_form
+
+    def query(p):
+        cf = canonical_form(p)
+        model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
+    return _median_time(query, model, family, seed, n)
+
+
+def _median_time(fn, model, family, seed, n):
+    """Median seconds of ``fn(problem)`` over the first ``n`` problems of the family that
+    ``model`` covers, after one warm-up pass (first calls load compiled code, the CPU clocks up);
+    NaN if it covers none."""
     from training.generate import GenerationSpec, problem_for
     probs = [problem_for(GenerationSpec(family, seed=seed), i) for i in range(n)]
     probs = [p for p in probs if model.covers(p) is None]
+    if not probs:
+        return math.nan
+    for p in probs:
+        fn(p)
     ts = []
-    for rep in range(2):      # the first pass warms up
-        for p in probs:
-            t0 = time.perf_counter()
-            cf = canonical_form(p)
-            model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
-            if rep:
-                ts.append(time.perf_counter() - t0)
-    return float(np.median(ts)) if ts else math.nan
+    for p in probs:
+        t0 = time.perf_counter()
+        fn(p)
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
 
 
 def build_nn(data_paths, out_path, max_switches=5, k=3, family="full-attitude"):
     if family == "pointing-cones":
         from .cone_data import nearest_table
-        nearest_table(data_paths, max_switches, k).save(out_path)
-        return out_path
-    from solvers.warmstart import NearestNeighbourModel
-    from .data import training_arrays
-    a = training_arrays(data_paths, max_switches)
-    nn = NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=k,
-                               name=f"nearest-neighbour (k={k}, {a['X'].shape[0]} solutions)")
-    nn.save(out_path)
+    else:
+        from .data import nearest_table
+    nearest_table(data_paths, max_switches, k).save(out_path)
     return out_path
 
 

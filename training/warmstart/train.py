@@ -230,11 +230,10 @@ def table_path(model_path):
 def export_attitude_table(data_paths, path, max_switches, domain, k=3):
     """The exact solutions of ``data_paths`` as a compact nearest-neighbour table (float32,
     compressed; ``solvers.warmstart.nearest``), with the network's domain."""
-    from solvers.warmstart import NearestNeighbourModel
-    from .data import training_arrays
-    a = training_arrays(data_paths, max_switches)
-    table = NearestNeighbourModel(a["X"], a["Z"], a["T"], a["T_eig"], a["U"], a["S"], k=k, domain=domain,
-                                  name=f"full-attitude solutions ({a['X'].shape[0]:,} exact)")
+    from .data import nearest_table
+    table = nearest_table(data_paths, max_switches, k)
+    table.domain = domain or {}
+    table.name = f"full-attitude solutions ({table.X.shape[0]:,} exact)"
     table.save(path, compact=True)
     return path
 
