@@ -333,3 +333,17 @@ def test_a_challenger_that_raises_leaves_the_verified_answer(monkeypatch):
     s = solve(_held_out(623), warm_budget=5.0)
     rec = s.warm_start["local_optimum_check"]
     assert s.success and s.guess == "nearest-neighbour[0]" and "collocation broke" in rec["error"]
+
+
+def test_an_uncertain_singular_vote_keeps_the_exact_extremal():
+    # held-out 377: 2 of the 5 nearest tabled problems singular; its optimum is bang-bang, but
+    # every learned candidate fails. The table's bang-bang answer is 8.7e-7 slower; collocation
+    # shows no singular arc, and its refinement certifies the extremal (the best known answer)
+    p = _held_out(377)
+    m = default_warm_start()
+    assert 0.2 <= m.singular_table.query(p)[0] < m.singular_table.vote
+    s = solve(p)
+    rec = s.warm_start["singular_table"]
+    assert s.success and s.exact and s.method == "indirect"
+    assert rec["uncertain"] is True and rec["exact_check"] == "an exact extremal, no slower"
+    assert "uncertain" in s.route and s.tf == pytest.approx(2.2701855619728395, rel=1e-9)

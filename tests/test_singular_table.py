@@ -121,10 +121,28 @@ def test_auto_takes_the_table_route_when_the_learned_guess_fails(tmp_path, singu
 
 def test_a_table_that_votes_no_leaves_the_collocation_route(tmp_path, singular_answer, monkeypatch):
     data = _dataset(tmp_path / "d.jsonl", singular_answer)
-    build([data], k=3, vote=0.9, n_sequences=1).save(tmp_path / "t.npz")
+    # 1 of the 6 nearest is singular: below the uncertain tier's share (0.2)
+    build([data], k=6, vote=0.9, n_sequences=1).save(tmp_path / "t.npz")
     s = _solve_with_table(tmp_path / "t.npz", monkeypatch)
     assert s.success and s.warm_start["singular_table"]["used"] is False
+    assert s.warm_start["singular_table"]["share"] == pytest.approx(1 / 6)
     assert "singular table" not in s.route and "collocation" in s.route
+
+
+def test_an_uncertain_vote_answers_from_the_table_after_collocation_sees_a_singular_arc(
+        tmp_path, singular_answer, monkeypatch):
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    # 1 of the 3 nearest is singular: below the vote (0.9), above the uncertain share (0.2)
+    build([data], k=3, vote=0.9, n_sequences=1, tf_rel_tol=5e-4).save(tmp_path / "t.npz")
+    s = _solve_with_table(tmp_path / "t.npz", monkeypatch)
+    rec = s.warm_start["singular_table"]
+    assert s.success and s.method == "switch-time" and not s.exact
+    assert rec["used"] is True and rec["uncertain"] is True
+    # collocation checked for an exact extremal and found the singular arc
+    assert "singular arc" in rec["exact_check"]
+    assert s.route.startswith("learned") and "singular table" in s.route
+    assert s.tf == pytest.approx(SINGULAR_TF, rel=5e-4) and s.tf < s.baseline_tf
+    assert max(_replay(SINGULAR, s.switch_times, s.u_first, s.tf)) < 1e-9
 
 
 def test_a_damaged_table_is_recorded_and_the_solve_goes_on(tmp_path, monkeypatch):
