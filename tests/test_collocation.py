@@ -424,7 +424,23 @@ def test_a_back_off_round_that_jumps_to_another_basin_is_not_taken():
     failures = []
     rep = type("Rep", (), {"x": np.zeros((2, 7))})()
     best, rep2, nit, nfev = _back_off(None, Run(1.76085), rep, math.inf, failures,
-                                      lambda run, e: (Run(2.40264), "cone back-off 3.4e-05 rad"),
+                                      lambda run, e, warm: (Run(2.40264), "cone back-off 3.4e-05 rad"),
                                       lambda run, r: 2.29e-5)
-    assert best.T == 1.76085 and rep2 is rep and nit == 1
-    assert "left the answer's basin" in failures[0]
+    # tried cold, then warm from the answer's primal-dual point; both jump, so neither is taken
+    assert best.T == 1.76085 and rep2 is rep and nit == 2
+    assert len(failures) == 2 and all("left the answer's basin" in f for f in failures)
+    assert failures[1].startswith("start (cone back-off 3.4e-05 rad, warm)")
+
+
+def test_a_cone_back_off_stays_in_the_answers_basin():
+    # pointing-cones (seed 0) problem 35: the 80-interval answer sags 6.8e-6 rad into the cone
+    # between collocation points. A cold IPOPT start of the back-off round jumped to another
+    # local optimum (+5.5 %), the round was rejected, and the solve failed after refining the
+    # mesh to its time limit. From the answer's primal-dual point the round stays in its basin.
+    from slew_env import TaskDistribution
+    p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([0, 35]))
+    s = solve_collocation(p, time_budget=30.0)
+    assert s.success, s.message
+    assert "cone back-off" in s.route and "N=80" in s.route
+    assert s.verification["cone_clearance"]["value"] >= -1e-6
+    assert s.tf == pytest.approx(2.470944, rel=1e-5)
