@@ -431,7 +431,7 @@ def _exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix) -> Optional[
     return None
 
 
-def _singular_table_route(prob, options, info, col_opts=None):
+def _singular_table_route(prob, options, info, col_opts=None, exact_check=True):
     """``(answer or None, (nit, nfev) spent)``: ``auto`` after the default model's guess failed.
     If most of the shipped singular table's nearest problems are singular
     (``warmstart.singular_table``), the fastest bang-bang slew with the switching sequence of a
@@ -439,7 +439,8 @@ def _singular_table_route(prob, options, info, col_opts=None):
     tried from its KKT costates when its sequence is a KKT point (a bang-bang optimum is
     certified there). Where only a few are (at least ``SINGULAR_UNCERTAIN_SHARE``, below the
     table's vote), the same answer with more iterations, then collocation (``col_opts``) checks
-    for an exact extremal (``_exact_after_uncertain_table``). ``None`` when the table does not
+    for an exact extremal (``_exact_after_uncertain_table``; not with ``exact_check=False``, the
+    table's answers alone, as ``slew evaluate`` measures them). ``None`` when the table does not
     apply or gives no such answer; ``info["singular_table"]`` records what happened (a damaged
     table file: the error; ``uncertain`` and ``exact_check`` for the second tier)."""
     from . import warmstart
@@ -481,8 +482,8 @@ def _singular_table_route(prob, options, info, col_opts=None):
     if ex is not None:
         rec.update(used=True, time_s=time.perf_counter() - t0)
         return ex, (0, 0)
-    if uncertain:
-        # 2 or 3 of the 5 nearest problems have a bang-bang optimum: collocation (a few tenths
+    if uncertain and exact_check:
+        # 3 or 4 of the 5 nearest problems have a bang-bang optimum: collocation (a few tenths
         # of a second without cones) says whether this one has a singular arc; where it shows
         # none, its exact refinement is tried, and a certified extremal no slower wins
         ex = _exact_after_uncertain_table(prob, bang, col_opts or {}, options,
