@@ -111,6 +111,23 @@ def test_inactive_cones_are_refined_to_the_exact_extremal_with_certified_clearan
     assert c["passed"] and c["value"] > 1e-3
 
 
+def test_inactive_cones_over_a_singular_arc_skip_the_exact_refinement(monkeypatch):
+    """pointing-cones seed 5, problem 281: collocation's path clears the cones by 0.44 rad, and
+    its torque on axis 1 is interior over 59 % of tf (a singular arc of the problem without
+    cones). No bang-bang extremal is near: auto returns the collocation answer at once instead
+    of spending the refinement's 2 s."""
+    import solvers.api as api
+    from slew_env import TaskDistribution
+    p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([5, 281]))
+    calls = []
+    monkeypatch.setattr(api, "_refine_collocation", lambda *a, **k: calls.append(1) or (None, False))
+    s = solve(p)
+    assert s.success and s.method == "collocation" and not s.exact
+    assert "cones inactive" in s.route and "singular arc" in s.route and "no exact refinement" in s.route
+    assert calls == []
+    assert s.tf == pytest.approx(2.2216987, rel=1e-6)
+
+
 def test_certified_clearance_is_a_lower_bound():
     from solvers.clearance import certified_min_margin, margins
     p = SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=[0.0, 1.0, 0.0],
