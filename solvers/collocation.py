@@ -1269,7 +1269,7 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
         e = excess(best, rep)
         if not e > 0.0 or time.perf_counter() > deadline:
             break
-        why = None
+        cold_why = None
         for warm in (False, True):
             r, label = solve_round(best, e, warm)
             nit += r.nit
@@ -1278,7 +1278,8 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
             # another local optimum (seen: +36 % for a 3.4e-5 rad cone back-off), not a repair.
             # A cold IPOPT start pushes the variables off their bounds (the bang-bang torques sit
             # on them) and can leave the basin; the warm start from the answer's primal-dual
-            # point stays (pointing-cones seed 0 problem 35: cold +5.5 %, warm within 1e-6)
+            # point stays (pointing-cones seed 0 problem 35 with starts on 40 intervals: cold
+            # +5.5 %, warm within 1e-6)
             if not r.success:
                 why = f"{best.source} ({label}{', warm' if warm else ''}): {r.status}"
             elif abs(r.T - best.T) > max(1e-3, 10.0 * e) * best.T:
@@ -1286,10 +1287,17 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
                        f"(T {best.T:.6g} → {r.T:.6g})")
             else:
                 why = None
+            if why is None:
+                if cold_why is not None:
+                    failures.append(f"{cold_why}; repaired: the warm restart stayed in the basin")
                 break
-            failures.append(why)
+            if warm:
+                failures += [cold_why, why]
+                break
             if time.perf_counter() > deadline:
+                failures.append(why)
                 break
+            cold_why = why
         if why is not None:
             break
         best = r
@@ -1308,7 +1316,7 @@ def _interior_clearance(prob, rep: _Replay, run: _Run, tau):
     return _certified_clearance(prob, tau, rep.t[sel], rep.x[sel])
 
 
-# intervals by default: 60, and 80 with keep-out cones. With cones the NLP has many local
+# intervals by default: 60, and 80 with keep-out cones (chosen with starts on N / 2). With cones the NLP has many local
 # optima and which one IPOPT reaches depends on the mesh (the constraints sit at the nodes and
 # midpoints). Measured on 60 random pointing-cones problems against the best of 60, 80 and 120
 # intervals: mean gap 0.91 % (60), 0.39 % (80), 0.19 % (120); worst 34 %, 6.6 %, 9 %; median
@@ -1319,7 +1327,9 @@ DEFAULT_INTERVALS_CONES = 80
 # picks the basin, and with fewer cone points IPOPT reaches the better ones more often: on 300
 # seeded pointing-cones problems, against the best of N/2, N/4 and N/8, the mean tf gap was
 # 1.7e-3 (N/2), 6.9e-4 (N/4), 6.0e-4 (N/8), with 13, 5 and 5 answers more than 1 % slower, and
-# `auto` took 0.9, 0.6 and 0.5 s (median; runs/s15/coarse_probe.py)
+# `auto` took 0.9, 0.6 and 0.5 s (median; runs/s15/coarse_probe.py). On 150 problems of another
+# seed, after the choice: 4.7e-3, 1.3e-3, 1.3e-3 and 9, 7, 4; exact extremals 126, 123, 120 (most
+# of those lost are faster answers riding a cone)
 COARSE_DIVISOR_CONES = 8
 
 
@@ -1526,7 +1536,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         Nc = max(min(10, N // 2), N // COARSE_DIVISOR_CONES) if prob.cones else max(2, N // 2)
     # tf_tol is the change from N / 2 intervals: with a coarser starts' grid, an N / 2 solve from
     # the answer gives it
-    N_half = max(2, N // 2) if Nc is not None and Nc != max(2, N // 2) else None
+    # (not when N / 2 is barely finer than the starts' grid: then the starts' answer gives it)
+    N_half = max(2, N // 2) if Nc is not None and 2 * Nc <= max(2, N // 2) else None
     # ---- stage 1: every start (on the coarse grid when there is one)
     nlp1 = _NLP(sc, _coarse_mesh(mesh_arr, Nc) if Nc else mesh_arr, max(tol, 1e-7) if Nc else tol,
                 min(max_iter, _COARSE_MAX_ITER) if Nc else max_iter, verbose)
@@ -1621,7 +1632,10 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                                       lambda run, r: float(np.max(np.abs(r.x[:, 4:7]) / sc.rate)) - 1.0 - 1e-10)
         nit, nfev = nit + n1, nfev + n2
     from_coarse = math.isfinite(Tc)
-    if N_half is not None and best.success and time.perf_counter() < deadline:
+    if N_half is not None and not (best.success and time.perf_counter() < deadline):
+        # no N / 2 answer: the starts' grid is too coarse to say how accurate tf is
+        Tc = math.nan
+    elif N_half is not None:
         nlp_half = _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER), verbose)
         r2 = nlp_half.solve(_regrid(best, nlp_half), deadline, best.source, delta=best.delta)
         nit += r2.nit

@@ -432,15 +432,46 @@ def test_a_back_off_round_that_jumps_to_another_basin_is_not_taken():
     assert failures[1].startswith("start (cone back-off 3.4e-05 rad, warm)")
 
 
-def test_a_cone_back_off_stays_in_the_answers_basin():
+def test_a_cone_back_off_stays_in_the_answers_basin(monkeypatch):
     # pointing-cones (seed 0) problem 35: the 80-interval answer sags 6.8e-6 rad into the cone
     # between collocation points. A cold IPOPT start of the back-off round jumped to another
     # local optimum (+5.5 %), the round was rejected, and the solve failed after refining the
     # mesh to its time limit. From the answer's primal-dual point the round stays in its basin.
+    # (with the starts on 40 intervals, as then: from today's 10-interval starts no round jumps)
+    import solvers.collocation as C
     from slew_env import TaskDistribution
+    monkeypatch.setattr(C, "COARSE_DIVISOR_CONES", 2)
     p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([0, 35]))
     s = solve_collocation(p, time_budget=30.0)
     assert s.success, s.message
-    assert "cone back-off" in s.route and "N=80" in s.route
+    assert "cone back-off" in s.route and "N=80, warm start from N=40" in s.route
+    assert "left the answer's basin" in s.message and "repaired: the warm restart stayed in the basin" in s.message
     assert s.verification["cone_clearance"]["value"] >= -1e-6
     assert s.tf == pytest.approx(2.470944, rel=1e-5)
+
+
+def test_a_back_off_round_repaired_by_the_warm_restart_is_taken():
+    from solvers.collocation import _back_off
+
+    class Run:
+        def __init__(self, T):
+            self.T, self.success, self.nit, self.nfev, self.source = T, True, 1, 1, "start"
+    failures, rounds = [], []
+
+    def solve_round(run, e, warm):
+        rounds.append(warm)
+        return Run(2.96975 if not warm else 2.815173), "cone back-off 1e-05 rad"
+    excess = iter([6.8e-6, -1.0])
+    rep = type("Rep", (), {"x": np.zeros((2, 7)), "nfev": 1})()
+    sc = type("Sc", (), {})()
+    import solvers.collocation as C
+    replays = []
+    orig = C._replay
+    C._replay = lambda sc, run: replays.append(run) or rep
+    try:
+        best, _, nit, _ = _back_off(sc, Run(2.815172), rep, math.inf, failures, solve_round,
+                                    lambda run, r: next(excess))
+    finally:
+        C._replay = orig
+    assert rounds == [False, True] and best.T == 2.815173 and nit == 2
+    assert len(failures) == 1 and failures[0].endswith("repaired: the warm restart stayed in the basin")

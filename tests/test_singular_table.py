@@ -293,3 +293,19 @@ def test_a_table_answer_that_is_a_kkt_point_goes_on_to_the_exact_extremal(tmp_pa
         warmstart.default_singular_table.cache_clear()
     assert s.success and s.exact and s.tf == pytest.approx(e.tf, rel=1e-10)
     assert s.warm_start["singular_table"]["used"] and "exact extremal from its KKT costates" in s.route
+
+
+def test_an_uncertain_votes_check_that_raises_leaves_the_tables_answer(tmp_path, singular_answer, monkeypatch):
+    import solvers.collocation as collocation
+    data = _dataset(tmp_path / "d.jsonl", singular_answer)
+    build([data], k=3, vote=0.9, n_sequences=1, tf_rel_tol=5e-4).save(tmp_path / "t.npz")
+
+    def broken(*a, **k):
+        raise RuntimeError("collocation broke")
+    monkeypatch.setattr(collocation, "solve_collocation", broken)
+    s = _solve_with_table(tmp_path / "t.npz", monkeypatch)
+    rec = s.warm_start["singular_table"]
+    assert s.success and s.method == "switch-time" and rec["uncertain"] is True
+    assert rec["exact_check"] == "error: RuntimeError: collocation broke"
+    assert "uncertain; collocation's check for an exact extremal: error" in s.route
+    assert s.tf == pytest.approx(SINGULAR_TF, rel=5e-4)
