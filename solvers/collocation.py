@@ -988,10 +988,10 @@ def _perturbed(sc: _Scaled, g: _TrajGuess, rng, amp=0.2):
     return _TrajGuess(g.T, g.t, g.q, g.w + dw, u, g.source + "+perturbed")
 
 
-def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0) -> List[_TrajGuess]:
+def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0, extra_starts=()) -> List[_TrajGuess]:
     """The starts: the given guess or the eigenaxis guess, seeded perturbations of it up to
     ``n_starts`` (default 4 without a guess, 1 with one), then cone detours when the
-    eigenaxis path crosses a cone."""
+    eigenaxis path crosses a cone, then ``extra_starts`` (``solvers.Guess``es, propagated)."""
     prob = sc.prob
     if isinstance(guess, SlewSolution):
         base, n_default = _solution_guess(sc, guess), 1
@@ -1013,6 +1013,10 @@ def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0) -> List[_Tra
             # tie that holds IPOPT (measured: 200+ iterations without convergence); the
             # perturbed copies and the detours break it
             out = out[1:]
+    for g in extra_starts or ():
+        tg = _propagate_guess(sc, g)
+        tg.source = f"{g.source} (propagated)"
+        out.append(tg)
     return out
 
 
@@ -1384,7 +1388,8 @@ def _mesh_limited(sol) -> bool:
 def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcription: str = "hermite-simpson",
                       guess=None, tol: float = 1e-8, max_iter: int = 3000, time_budget: float = 60.0,
                       verbose: bool = False, n_starts: Optional[int] = None, seed: int = 0,
-                      coarse: bool = True, mesh=None, tols: Optional[dict] = None) -> SlewSolution:
+                      coarse: bool = True, mesh=None, tols: Optional[dict] = None,
+                      extra_starts=()) -> SlewSolution:
     """Time-optimal slew of ``problem`` by Hermite–Simpson direct collocation and IPOPT.
 
     Parameters
@@ -1430,16 +1435,24 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
     mesh : optional, ``N`` positive interval fractions (normalised to sum 1). Uniform by default.
     tols : dict, optional
         Overrides of ``DEFAULT_TOLS`` (the verification tolerances).
+    extra_starts : sequence of ``solvers.Guess``, optional
+        More starts, each propagated (bang-bang from its switch times, else the extremal of its
+        costates) and solved with the others on the coarse grid. ``auto`` gives the nearest
+        solutions of the shipped pointing-cones table here (``CONE_NEIGHBOUR_STARTS``).
 
     Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
     the fields, the checks and the statuses.
     """
     t_start = time.perf_counter()
+    if extra_starts is None:
+        extra_starts = ()
+    if not all(isinstance(g, Guess) for g in extra_starts):
+        raise ValueError("extra_starts: expected a sequence of solvers.Guess")
     kw = dict(transcription=transcription, tol=tol, max_iter=max_iter, verbose=verbose, seed=seed, coarse=coarse,
               tols=tols)
     evidence = {}
     sol = _solve_collocation_mesh(problem, n_intervals=n_intervals, guess=guess, time_budget=time_budget,
-                                  n_starts=n_starts, mesh=mesh, evidence=evidence, **kw)
+                                  n_starts=n_starts, mesh=mesh, evidence=evidence, extra_starts=extra_starts, **kw)
     if n_intervals is not None or mesh is not None or not _mesh_limited(sol):
         return sol
     # the default mesh is too coarse for this problem (fast axes of a very unequal inertia,
@@ -1477,7 +1490,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
 
 
 def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, max_iter, time_budget, verbose,
-                            n_starts, seed, coarse, mesh, tols, evidence=None) -> SlewSolution:
+                            n_starts, seed, coarse, mesh, tols, evidence=None, extra_starts=()) -> SlewSolution:
     """``solve_collocation`` on one mesh (or each mesh of a list). ``evidence``: a dict that
     carries the saddle rule's count of agreeing symmetry-breaking starts between meshes."""
     t_start = time.perf_counter()
@@ -1488,7 +1501,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if isinstance(n_intervals, (list, tuple)):
         return _best_of_meshes(prob, list(n_intervals), t_start, transcription=transcription, guess=guess,
                                tol=tol, max_iter=max_iter, time_budget=time_budget, verbose=verbose,
-                               n_starts=n_starts, seed=seed, coarse=coarse, mesh=mesh, tols=tols)
+                               n_starts=n_starts, seed=seed, coarse=coarse, mesh=mesh, tols=tols,
+                               extra_starts=extra_starts)
     N = _check_intervals(n_intervals)
     if transcription not in TRANSCRIPTIONS:
         raise ValueError(f"transcription: unknown transcription {transcription!r}; "
@@ -1526,7 +1540,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                          "sensor directions: every path crosses a cone (infeasible)")
     sc = _Scaled.of(prob)
     deadline = t_start + float(time_budget)
-    starts = initial_guesses(sc, guess, n_starts, seed)
+    starts = initial_guesses(sc, guess, n_starts, seed, extra_starts)
 
     nit = nfev = 0
     failures = []
