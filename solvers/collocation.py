@@ -1014,7 +1014,12 @@ def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0, extra_starts
             # perturbed copies and the detours break it
             out = out[1:]
     for g in extra_starts or ():
-        tg = _propagate_guess(sc, g)
+        try:
+            tg = _propagate_guess(sc, g)
+        except (ValueError, FloatingPointError, ArithmeticError):
+            continue        # a start that cannot be propagated is no start (the others run)
+        if not (np.all(np.isfinite(tg.q)) and np.all(np.isfinite(tg.w)) and np.isfinite(tg.T) and tg.T > 0):
+            continue
         tg.source = f"{g.source} (propagated)"
         out.append(tg)
     return out
@@ -1437,8 +1442,9 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         Overrides of ``DEFAULT_TOLS`` (the verification tolerances).
     extra_starts : sequence of ``solvers.Guess``, optional
         More starts, each propagated (bang-bang from its switch times, else the extremal of its
-        costates) and solved with the others on the coarse grid. ``auto`` gives the nearest
-        solutions of the shipped pointing-cones table here (``CONE_NEIGHBOUR_STARTS``).
+        costates) and solved with the others on the coarse grid; one whose propagation fails or
+        is not finite is skipped. ``auto`` gives the nearest solutions of the shipped
+        pointing-cones table here (``CONE_NEIGHBOUR_STARTS``).
 
     Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
     the fields, the checks and the statuses.

@@ -142,6 +142,19 @@ def test_the_nearest_cone_solutions_join_collocations_starts():
     assert without.success and without.tf == pytest.approx(1.8283359, rel=1e-6)
 
 
+def test_an_extra_start_that_cannot_be_propagated_is_skipped(monkeypatch):
+    import solvers.collocation as C
+    from solvers import Guess
+    from slew_env import TaskDistribution
+    p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([0, 65]))
+    sc = C._Scaled.of(p)
+    g = Guess(np.array([0.0, 0.3, -0.2, 0.1, 0.5, -0.4, 0.2]), 2.0, source="bad")
+    n0 = len(C.initial_guesses(sc))
+    assert len(C.initial_guesses(sc, extra_starts=[g])) == n0 + 1
+    monkeypatch.setattr(C, "_propagate_guess", lambda sc, g: (_ for _ in ()).throw(FloatingPointError("overflow")))
+    assert len(C.initial_guesses(sc, extra_starts=[g])) == n0
+
+
 def test_extra_starts_must_be_guesses():
     from solvers.collocation import solve_collocation
     p = SlewProblem(inertia=[1.0, 1.0, 1.0], sensor_target=TARGET)
