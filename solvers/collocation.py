@@ -1652,24 +1652,22 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                                       lambda run, r: float(np.max(np.abs(r.x[:, 4:7]) / sc.rate)) - 1.0 - 1e-10)
         nit, nfev = nit + n1, nfev + n2
     from_coarse = math.isfinite(Tc)
-    if N_half is not None and not (best.success and time.perf_counter() < deadline):
-        # no N / 2 answer: the starts' grid is too coarse to say how accurate tf is
-        Tc = math.nan
-    elif N_half is not None:
-        nlp_half = _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER), verbose)
-        r2 = nlp_half.solve(_regrid(best, nlp_half), deadline, best.source, delta=best.delta)
-        nit += r2.nit
-        nfev += r2.nfev
-        # (an N / 2 answer in another basin says nothing of this one's accuracy)
-        Tc = r2.T if r2.success and abs(best.T - r2.T) <= 1e-2 * best.T else math.nan
-    elif (math.isfinite(Tc) and best.success and abs(best.T - Tc) > 1e-2 * best.T
-            and time.perf_counter() < deadline):
-        # the refinement (or the back-off) left the coarse answer's basin: the coarse
-        # grid's answer in the new basin (warm start from the fine one) is the comparison
-        r2 = nlp1.solve(_regrid(best, nlp1), deadline, best.source, delta=best.delta)
-        nit += r2.nit
-        nfev += r2.nfev
-        Tc = r2.T if r2.success else math.nan
+    # tf_tol compares the answer with a coarser grid's answer in its basin: with cones an N / 2
+    # solve from the answer (the starts' grid is too coarse to say how accurate tf is); else the
+    # starts' grid again, from the answer, when the refinement (or the back-off) left the coarse
+    # answer's basin
+    if N_half is not None or (from_coarse and abs(best.T - Tc) > 1e-2 * best.T):
+        if N_half is not None:
+            Tc = math.nan
+        if best.success and time.perf_counter() < deadline:
+            nlp_cmp = nlp1 if N_half is None else _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
+                                                       min(max_iter, _COARSE_MAX_ITER), verbose)
+            r2 = nlp_cmp.solve(_regrid(best, nlp_cmp), deadline, best.source, delta=best.delta)
+            nit += r2.nit
+            nfev += r2.nfev
+            # (an N / 2 answer in another basin says nothing of this one's accuracy)
+            ok = r2.success and (N_half is None or abs(best.T - r2.T) <= 1e-2 * best.T)
+            Tc = r2.T if ok else math.nan
     fields, checks = _post(sc, best, Tc, tols_all, rep)
     route = f"Hermite–Simpson, N={best.nlp.N}"
     if from_coarse:
