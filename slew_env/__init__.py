@@ -8,14 +8,17 @@ workers: they import the package again, through the registered entry point
 """
 from .problem import SlewProblem, Cone
 
-__all__ = ["SlewProblem", "Cone", "SlewEnv", "SlewVectorEnv", "TaskDistribution", "ENV_ID"]
+__all__ = ["SlewProblem", "Cone", "SlewEnv", "SlewVectorEnv", "TaskDistribution", "ConeShield",
+           "ConeShieldFilter", "ConeShieldVector", "ENV_ID"]
 __version__ = "0.1.0"
 
 ENV_ID = "slew_env/Slew-v0"
 DEFAULT_MAX_EPISODE_STEPS = 400  # TimeLimit of the registered environment
 
 # Heavier modules load on first use (PEP 562), so ``import slew_env`` stays cheap.
-_LAZY = {"SlewEnv": ".env", "SlewVectorEnv": ".vector_env", "TaskDistribution": ".tasks"}
+_LAZY = {"SlewEnv": ".env", "SlewVectorEnv": ".vector_env", "TaskDistribution": ".tasks",
+         "ConeShield": ".shield", "ConeShieldFilter": ".shield",
+         "ConeShieldVector": ".shield"}
 
 
 def __getattr__(name):

@@ -131,3 +131,46 @@ def test_a_line_cut_by_a_kill_is_skipped_and_the_next_record_starts_a_new_line(t
     with _open_append(path) as f:
         f.write('{"index": 2, "success": false}\n')
     assert [r["index"] for r in load_records(path)] == [0, 2]
+
+
+class _Law:
+    """A policy stand-in: the PD law on the raw observation; ``dither`` adds ±0.6 torque on
+    alternate steps, so it reaches the target but never comes to rest there."""
+
+    def __init__(self, dither):
+        self.dither = dither
+        self.k = 0
+
+    def predict(self, o, deterministic=True):
+        from slew_env.core import env_kernels as K
+        o = np.asarray(o, float)[0]
+        dq, w = o[K.OB_DQ:K.OB_DQ + 4], o[K.OB_W:K.OB_W + 3]
+        ang = 2.0 * math.atan2(np.linalg.norm(dq[1:]), dq[0])
+        a = 5.0 * ang * dq[1:] / max(np.linalg.norm(dq[1:]), 1e-12) - 3.0 * w
+        self.k += 1
+        if self.dither:
+            a = a + 0.6 * (-1) ** self.k
+        return np.clip(a, -1, 1)[None], None
+
+
+def test_terminal_dagger_states_are_near_the_target_of_episodes_that_failed():
+    from slew_env.shield import ConeShield
+    from training.rl.dense_expert import visited_states
+
+    prob = SlewProblem(inertia=(0.6, 0.9, 1.0), torque_max=1.0, q0=[1, 0, 0, 0], sensor_axis=[1, 0, 0],
+                       sensor_target=[0.0, 1.0, 0.0], cones=[{"axis": [0, 0, 1], "half_angle_deg": 20.0}])
+    env = ConeShield(SlewEnv(task_distribution="pointing-cones"))
+    rng = np.random.default_rng(0)
+    states, outcome = visited_states(_Law(dither=True), None, env, prob, 4, rng, terminal_deg=2.0)
+    assert outcome == "timeout" and len(states) == 4
+    tgt = np.asarray(prob.target_direction, float)
+    for x in states:
+        err = math.degrees(math.acos(np.clip(_sensor(x[:4], prob.sensor_axis) @ tgt, -1, 1)))
+        assert 0.0 < err <= 2.0 + 1e-9
+    # on the way (the default): states more than 0.5° from the target
+    states, _ = visited_states(_Law(dither=True), None, env, prob, 4, rng)
+    assert all(math.degrees(math.acos(np.clip(_sensor(x[:4], prob.sensor_axis) @ tgt, -1, 1))) > 0.5
+               for x in states)
+    # a policy that succeeds gives no terminal states
+    states, outcome = visited_states(_Law(dither=False), None, env, prob, 4, rng, terminal_deg=2.0)
+    assert outcome == "success" and states == []

@@ -124,11 +124,16 @@ def control_from_record(rec: dict) -> Optional[Callable]:
     return control
 
 
-def _env_for(env_kwargs: dict):
+def _env_for(env_kwargs: dict, shield: Optional[dict] = None):
+    """A ``SlewEnv`` with a run's ``env_kwargs``; ``ConeShield``-wrapped when ``shield`` is not None."""
     from slew_env import SlewEnv
 
     kw = {k: v for k, v in (env_kwargs or {}).items() if k not in ("max_episode_steps", "task_distribution")}
-    return SlewEnv(**kw)
+    env = SlewEnv(**kw)
+    if shield is not None:
+        from slew_env.shield import ConeShield
+        env = ConeShield(env, **shield)
+    return env
 
 
 def expert_action(control, t0: float, dt: float, umax: np.ndarray, mode: str = "average", n_sub: int = 32):

@@ -229,16 +229,25 @@ def build_pairs(records: list, max_cones: int = 4, control_dt: float = 0.05, n_s
 
 
 # --------------------------------------------------------------------------- DAgger
-def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 400, min_margin_deg: float = 0.5):
+def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 400, min_margin_deg: float = 0.5,
+                   terminal_deg: Optional[float] = None):
     """Fly ``problem`` with the deterministic policy; return up to ``n_pick`` visited states
     ``(q, ω)`` (at random control instants before the episode ended, with every cone at least
-    ``min_margin_deg`` away), and the rollout's outcome."""
+    ``min_margin_deg`` away), and the rollout's outcome.
+
+    By default the states are on the way (more than 0.5° from the target). With
+    ``terminal_deg``, only states within that angle of the target are picked, at random,
+    and only from episodes that did not succeed: where a policy dithers at the target
+    without coming to rest."""
     obs, info = env.reset(options={"problem": problem})
     states = []
     term = False
     for _ in range(max_steps):
-        x = env.state
-        if info["min_cone_margin"] >= math.radians(min_margin_deg) and info["attitude_error"] > math.radians(0.5):
+        x = env.unwrapped.state
+        err = info["attitude_error"]
+        near = terminal_deg is not None and 1e-4 < err <= math.radians(terminal_deg)
+        far = terminal_deg is None and err > math.radians(0.5)
+        if info["min_cone_margin"] >= math.radians(min_margin_deg) and (near or far):
             states.append(x)
         o = vn.normalize_obs(obs[None]) if vn is not None else obs[None]
         a, _ = model.predict(o, deterministic=True)
@@ -246,8 +255,11 @@ def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 4
         if term:
             break
     outcome = "success" if info["is_success"] else ("violation" if info["violation"] else "timeout")
-    if not states:
+    if not states or (terminal_deg is not None and outcome == "success"):
         return [], outcome
+    if terminal_deg is not None:
+        idx = rng.choice(len(states), size=min(n_pick, len(states)), replace=False)
+        return [states[i] for i in sorted(idx.tolist())], outcome
     # later states are where a drifting policy is worst off: half the picks from the last third
     k = min(n_pick, len(states))
     late = len(states) * 2 // 3
@@ -259,7 +271,7 @@ def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 4
 
 
 def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2,
-           margin_deg: float = DEFAULT_MARGIN_DEG, progress: bool = True) -> dict:
+           margin_deg: float = DEFAULT_MARGIN_DEG, progress: bool = True, terminal_deg: Optional[float] = None) -> dict:
     """One DAgger round: fly ``policy`` on problems ``0 .. n_problems-1`` of (family, seed),
     pose the slew from visited states (same target and cones, the state's attitude and rate),
     and append their dense expert answers to ``out`` (resumable by problem index)."""
@@ -268,9 +280,10 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
 
     from .bc import _env_for
     from .evaluate import load_policy
+    from .train import shield_kwargs
 
     model, vn, cfg = load_policy(policy)
-    env = _env_for(cfg.get("env_kwargs") or {})
+    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg))   # fly the policy as it trained
     spec = GenerationSpec(family=family, seed=int(seed), n=int(n_problems))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -284,7 +297,7 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
                 continue
             prob = problem_for(spec, i)
             rng = np.random.default_rng([int(seed), i, 7])
-            states, outcome = visited_states(model, vn, env, prob, n_pick, rng)
+            states, outcome = visited_states(model, vn, env, prob, n_pick, rng, terminal_deg=terminal_deg)
             outcomes[outcome] = outcomes.get(outcome, 0) + 1
             for j, x in enumerate(states):
                 d = prob.to_dict()
@@ -325,6 +338,9 @@ def main(argv=None) -> int:
     g.add_argument("--n", type=int, required=True, help="problems flown")
     g.add_argument("--pick", type=int, default=2, help="visited states solved per problem")
     g.add_argument("--margin-deg", type=float, default=DEFAULT_MARGIN_DEG)
+    g.add_argument("--terminal-deg", type=float, default=None,
+                   help="pick only states within this angle of the target, from episodes that did not succeed "
+                        "(where a policy dithers without coming to rest); default: states on the way")
     g.add_argument("--threads", type=int, default=1)
     g.add_argument("--out", required=True)
     st = sub.add_parser("stats", help="summary of a dense expert file")
@@ -339,7 +355,10 @@ def main(argv=None) -> int:
     if args.cmd == "dagger":
         import torch
         torch.set_num_threads(args.threads)
-        res = dagger(args.policy, args.family, args.seed, args.n, args.out, args.pick, args.margin_deg)
+        if args.terminal_deg is not None and not 0.0 < args.terminal_deg < 180.0:
+            raise SystemExit(f"--terminal-deg: must be in (0, 180), got {args.terminal_deg}")
+        res = dagger(args.policy, args.family, args.seed, args.n, args.out, args.pick, args.margin_deg,
+                     terminal_deg=args.terminal_deg)
         print(json.dumps(res))
         return 0
     recs = load_records(args.path)

@@ -119,12 +119,15 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
     """Fly ``problem`` with the deterministic policy in ``env`` (a ``SlewEnv``)."""
     obs, info = env.reset(options={"problem": problem})
     s_b = np.asarray(problem.sensor_axis, float)
-    H = {"t": [0.0], "att": [info["attitude_error"]], "sensor": [_sensor_inertial(env.state[:4], s_b)],
+    base = env.unwrapped
+    H = {"t": [0.0], "att": [info["attitude_error"]], "sensor": [_sensor_inertial(base.state[:4], s_b)],
          "u": []} if history else None
     violation = False
     min_margin = math.inf
     term = False
     steps = 0
+    shield_steps = 0
+    shield_infeasible = 0
     for steps in range(1, max_steps + 1):
         o = vn.normalize_obs(obs[None]) if vn is not None else obs[None]
         action, _ = model.predict(o, deterministic=True)
@@ -132,18 +135,21 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
         obs, _, term, trunc, info = env.step(a)
         violation |= bool(info["violation"])
         min_margin = min(min_margin, float(info["min_cone_margin"]))
+        if info.get("shield_active"):
+            shield_steps += 1
+            shield_infeasible += not info.get("shield_feasible", True)
         if history:
             H["u"].append(a)
             H["t"].append(info["time"])
             H["att"].append(info["attitude_error"])
-            H["sensor"].append(_sensor_inertial(env.state[:4], s_b))
+            H["sensor"].append(_sensor_inertial(base.state[:4], s_b))
         if term:
             break
     res = {"success": bool(info["is_success"]), "violation": violation, "steps": steps, "time": float(info["time"]),
            "final_attitude_error_deg": float(np.degrees(info["attitude_error"])),
            "final_rate_error": float(info["rate_error"]),
            "min_cone_margin_deg": float(np.degrees(min_margin)) if math.isfinite(min_margin) else None,
-           "terminated": bool(term)}
+           "terminated": bool(term), "shield_steps": shield_steps, "shield_infeasible_steps": shield_infeasible}
     if history:
         res["history"] = {k: np.asarray(v) for k, v in H.items()}
     return res
@@ -241,6 +247,8 @@ def summarise(episodes: list) -> dict:
         "violation_rate": sum(e["violation"] for e in episodes) / n if n else math.nan,
         "n_with_cones": len(margins), "min_cone_margin_deg": min(margins) if margins else None,
         "n_truncated": sum(not e["terminated"] for e in episodes),
+        "n_shielded": sum(bool(e.get("shield_steps")) for e in episodes),
+        "n_shield_infeasible": sum(bool(e.get("shield_infeasible_steps")) for e in episodes),
         "tf_policy_median": tfp["median"], "tf_policy_mean": tfp["mean"],
         "solver_ok": outcomes.get("ok", 0), "solver_ok_exact": sum(bool(e.get("optimal_exact")) for e in episodes),
         "solver_failed": outcomes.get("failed", 0),
@@ -257,8 +265,12 @@ def summarise(episodes: list) -> dict:
 def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEFAULT_EVAL_SEED, out=None,
              plot_k: int = 3, solutions=None, solver_workers: int = 1, solve_options=None,
              max_steps: int = DEFAULT_MAX_STEPS, progress: bool = True, command: Optional[str] = None,
-             solve_fn: Optional[str] = None) -> dict:
+             solve_fn: Optional[str] = None, shield="policy") -> dict:
     """Roll the policy out on ``n`` held-out problems and compare with the optimum; returns the results dict.
+
+    ``shield``: ``"policy"`` flies the policy with the ``ConeShield`` its run trained with (none if
+    it trained without); ``"on"`` adds the filter with its defaults when the run had none; ``"off"``
+    flies the bare network; a dict gives ``ConeShield`` arguments.
 
     Writes ``report.md``, ``results.json`` and (``plot_k > 0``) ``overlay.png`` to ``out``
     (default ``<policy dir>/eval-<family>-seed<seed>``).
@@ -286,7 +298,8 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     t_solve = time.perf_counter() - t_solve
     problems = heldout_problems(family, n, seed)
     env_kwargs = dict(cfg.get("env_kwargs") or {})
-    env = _env_for(env_kwargs)
+    shield_kw = resolve_shield(shield, cfg)
+    env = _env_for(env_kwargs, shield_kw)
     episodes = []
     t_roll = time.perf_counter()
     histories = {}
@@ -315,6 +328,7 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     summary = summarise(episodes)
     results = {"policy": str(policy), "algo": cfg.get("algo"), "trained_family": cfg.get("family"),
                "family": family, "n": n, "seed": seed, "max_steps": max_steps, "env_kwargs": env_kwargs,
+               "shield": shield_kw, "trained_with_shield": _shield_of(cfg),
                "solutions": str(solutions) if solutions else None, "summary": summary,
                "timing": {"solve_s": t_solve, "rollout_s": t_roll, "total_s": time.perf_counter() - t0},
                "command": command, "train_info": _train_info(pdir), "episodes": episodes}
@@ -325,6 +339,26 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     (out / "report.md").write_text(report_markdown(results, plot_k > 0))
     results["out"] = str(out)
     return results
+
+
+def _shield_of(cfg: dict):
+    from .train import shield_kwargs
+    return shield_kwargs(cfg)
+
+
+def resolve_shield(shield, cfg: dict) -> Optional[dict]:
+    """``ConeShield`` arguments for a rollout (None: no filter); see ``evaluate``'s ``shield``."""
+    trained = _shield_of(cfg)
+    if isinstance(shield, dict):
+        from .train import shield_kwargs
+        return shield_kwargs({"shield": shield})
+    if shield == "policy":
+        return trained
+    if shield == "on":
+        return trained if trained is not None else {}
+    if shield == "off":
+        return None
+    raise ValueError(f"--shield: expected policy, on or off, got {shield!r}")
 
 
 def _train_info(pdir: Path):
@@ -363,6 +397,12 @@ def _f(x, spec=".3f"):
     return format(x, spec)
 
 
+def _shield_text(kw: dict) -> str:
+    from slew_env.shield import ConeShieldFilter
+    cfg = ConeShieldFilter(**kw).config()
+    return ", ".join(f"{k} {v:g}" for k, v in cfg.items())
+
+
 def report_markdown(results: dict, with_plot: bool) -> str:
     s = results["summary"]
     ti = results.get("train_info") or {}
@@ -370,7 +410,9 @@ def report_markdown(results: dict, with_plot: bool) -> str:
              f"{results['algo']} policy (trained on {results['trained_family']}"
              + (f", {ti.get('num_timesteps')} steps, {_f(ti.get('wall_time_s'), '.0f')} s" if ti else "")
              + f") on {results['n']} held-out `{results['family']}` problems (seed {results['seed']}), "
-               f"deterministic, at most {results['max_steps']} control steps.", ""]
+               f"deterministic, at most {results['max_steps']} control steps"
+             + (f", through the keep-out-cone filter `ConeShield` ({_shield_text(results['shield'])})"
+                if results.get("shield") is not None else ", without a safety filter") + ".", ""]
     if results.get("command"):
         lines += ["```", results["command"], "```", ""]
     lines += ["| metric | value |", "|---|---|",
@@ -378,6 +420,8 @@ def report_markdown(results: dict, with_plot: bool) -> str:
               f"| episodes with a cone/rate violation | {s['n_violation']} ({_f(100 * s['violation_rate'], '.1f')} %) |",
               f"| smallest cone margin (deg) | {_f(s['min_cone_margin_deg'], '.2f')} |",
               f"| truncated (time limit) | {s['n_truncated']} |",
+              f"| episodes where the cone filter changed an action / could not meet a condition | "
+              f"{s['n_shielded']} / {s['n_shield_infeasible']} |",
               f"| final time tf_policy at success, median / mean | {_f(s['tf_policy_median'])} / {_f(s['tf_policy_mean'])} |",
               f"| solver: verified optimum / failed / refused | {s['solver_ok']} / {s['solver_failed']} / {s['solver_refused']} |",
               f"| of the verified optima: exact extremals (indirect) / collocation answers | {s['solver_ok_exact']} / "
@@ -526,6 +570,9 @@ def add_arguments(p: argparse.ArgumentParser):
                    help="solve route for missing solutions (default solvers.solve, as slew generate)")
     p.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS,
                    help=f"control steps before an episode counts as failed (default {DEFAULT_MAX_STEPS})")
+    p.add_argument("--shield", choices=("policy", "on", "off"), default="policy",
+                   help="keep-out-cone safety filter (slew_env.shield.ConeShield): 'policy' as the run trained "
+                        "(default), 'on' the filter's defaults where the run had none, 'off' the bare network")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no solver progress bar")
 
@@ -539,7 +586,7 @@ def run(args) -> int:
         raise ValueError("--solve-options: expected a JSON object")
     res = evaluate(args.policy, args.family, args.n, args.seed, args.out, args.plot_k, args.solutions,
                    args.solver_workers, opts, args.max_steps, not args.no_progress, command=" ".join(sys.argv),
-                   solve_fn=args.solve_fn)
+                   solve_fn=args.solve_fn, shield=args.shield)
     s = res["summary"]
     print(f"{s['n']} problems: success {100 * s['success_rate']:.1f} %, violations {s['n_violation']}, "
           f"median tf_policy {_f(s['tf_policy_median'])}, tf_policy/tf_optimal median {_f(s['ratio_median'])} "

@@ -45,10 +45,10 @@ from . import ALGOS, EVAL_ENV_SEED_OFFSET, FAMILIES
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 CONFIG_KEYS = {"n_envs", "n_timesteps", "policy", "policy_kwargs", "hyperparameters", "normalize",
-               "env_kwargs", "eval", "checkpoint", "bc"}
+               "env_kwargs", "eval", "checkpoint", "bc", "shield"}
 DEFAULTS = {"policy": "MlpPolicy", "policy_kwargs": {}, "hyperparameters": {}, "normalize": {"norm_obs": True,
             "norm_reward": False}, "env_kwargs": {}, "eval": {"eval_freq": 50000, "n_eval_episodes": 50},
-            "checkpoint": {"save_freq": 100000}, "bc": {}}
+            "checkpoint": {"save_freq": 100000}, "bc": {}, "shield": None}
 _ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU",
                 "silu": "SiLU"}
 
@@ -146,8 +146,32 @@ def make_env_kwargs(cfg: dict) -> dict:
     return kw
 
 
+def shield_kwargs(cfg: dict) -> Optional[dict]:
+    """The ``ConeShield`` arguments of a config's ``shield`` entry; None without a shield.
+
+    ``shield: null`` or ``false``: none; ``true`` or ``{}``: the filter's defaults; a mapping:
+    ``ConeShield`` arguments (``margin_deg``, ``barrier_rate``, ``brake``, ``sweeps``).
+    """
+    sh = cfg.get("shield")
+    if sh is None or sh is False:
+        return None
+    if sh is True:
+        return {}
+    if not isinstance(sh, dict):
+        raise ValueError(f"shield: expected null, true/false or a mapping of ConeShield arguments, got {sh!r}")
+    from slew_env.shield import ConeShieldFilter
+    try:
+        ConeShieldFilter(**sh)
+    except TypeError as exc:
+        raise ValueError(f"shield: {exc}; known: margin_deg, barrier_rate, brake, sweeps") from None
+    except ValueError as exc:
+        raise ValueError(f"shield.{exc}") from None
+    return dict(sh)
+
+
 def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
-    """``make_vec_env`` of Slew-v0 (Monitor-wrapped, copy i seeded with ``seed + i``)."""
+    """``make_vec_env`` of Slew-v0 (Monitor-wrapped, copy i seeded with ``seed + i``; ``ConeShield``-wrapped
+    when the config has a ``shield``)."""
     import slew_env  # noqa: F401  (registers Slew-v0)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -156,8 +180,13 @@ def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
         raise ValueError(f"--vec-env: expected dummy or subproc, got {vec_env!r}")
     cls = SubprocVecEnv if vec_env == "subproc" and n_envs > 1 else DummyVecEnv
     # "module:id" makes gymnasium import slew_env (which registers Slew-v0) in SubprocVecEnv workers too
+    shield = shield_kwargs(cfg)
+    wrap = {}
+    if shield is not None:
+        from slew_env.shield import ConeShield
+        wrap = {"wrapper_class": ConeShield, "wrapper_kwargs": shield}
     return make_vec_env(f"slew_env:{slew_env.ENV_ID}", n_envs=n_envs, seed=seed, vec_env_cls=cls,
-                        env_kwargs=make_env_kwargs(cfg), monitor_kwargs={"info_keywords": ("is_success",)})
+                        env_kwargs=make_env_kwargs(cfg), monitor_kwargs={"info_keywords": ("is_success",)}, **wrap)
 
 
 def normalize_kwargs(cfg: dict) -> Optional[dict]:

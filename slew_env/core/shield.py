@@ -1,0 +1,248 @@
+"""Compiled keep-out-cone safety filter on the environment's observation.
+
+The filter changes an action only as much as needed to keep the sensor out of every
+cone, using nothing but the observation of ``env_kernels`` (so a policy that sees
+the observation can carry the filter with it on board). It is a control barrier
+function with a braking term, on the nondimensional dynamics of the observation
+(time unit ``T``, rates ``ω̃ = ω·T``, inertia ``J̃ = J/J_max``, torque ``ũ = u/max u_max``):
+
+    dω̃/dτ = J̃⁻¹ (ũ − ω̃ × J̃ ω̃),   ũ_i = ũ_max,i · v_i,   v the normalised action.
+
+For a cone with body-frame axis ``c`` and half-angle ``α``, and the sensor ``b``,
+``h = cos(α + δ) − b·c`` is ≥ 0 outside the cone enlarged by the margin ``δ``.
+In the body frame ``ċ = c × ω``, so
+
+    ḣ = −ω̃·(b × c),    ḧ = G·v + a₀,   G = −ũ_max ⊙ J̃⁻¹(b × c),
+    a₀ = (b × c)·J̃⁻¹(ω̃ × J̃ω̃) − ω̃·(b × (c × ω̃)).
+
+``h`` has relative degree two, and the torque is bounded, so a plain exponential
+barrier can ask for more deceleration than the actuators have. The filter keeps
+instead ``h_b = h − max(0, −ḣ)² / (2β)`` ≥ 0: the margin left after braking at ``β``,
+a fraction ``brake`` of the largest ``G·v`` the box allows. Its condition
+``ḣ_b + λ h_b ≥ 0`` is linear in ``v``. When the sensor does not approach the cone
+the classical second-order condition ``ḧ + 2λḣ + λ²h ≥ 0`` is used instead.
+
+The action kept is the point of the box closest to the policy's action that meets
+every cone's condition: a small quadratic programme solved in its dual by cyclic
+bisection on the multipliers (``v(μ) = clip(v_nom + Σ μ_k G_k)``). Where the box
+cannot meet a condition (the policy drove in too fast), the largest multiplier is
+used: the strongest push away the box allows. For a p-norm bound the box is the
+cube inscribed in the p-ball, so the environment's radial scaling never applies
+to a filtered action. Unfiltered actions are returned unchanged.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from . import env_kernels as _k
+
+# params layout
+P_MARGIN = 0       # δ: margin added to every cone (rad)
+P_LAMBDA = 1       # λ: barrier rate (per time unit T)
+P_BRAKE = 2        # β as a fraction of the box's largest G·v
+P_SWEEPS = 3       # dual sweeps over the cones
+PARAMS_LENGTH = 4
+
+# out layout (diagnostics of the last call)
+F_ACTIVE = 0       # number of cone conditions that changed the action
+F_FEASIBLE = 1     # 1 if every condition is met by the returned action
+F_MIN_SLACK = 2    # smallest G·v − d over the cones considered (inf if none)
+OUT_LENGTH = 3
+
+MAX_CONES = 16
+_MU_MAX = 1e6
+_BISECT = 40
+
+
+def make_params(margin_rad, barrier_rate, brake, sweeps):
+    p = np.zeros(PARAMS_LENGTH)
+    p[P_MARGIN] = margin_rad
+    p[P_LAMBDA] = barrier_rate
+    p[P_BRAKE] = brake
+    p[P_SWEEPS] = sweeps
+    return p
+
+
+@njit(cache=True)
+def _clip_box(x, s):
+    if x > s:
+        return s
+    if x < -s:
+        return -s
+    return x
+
+
+@njit(cache=True)
+def _v_of(vnom, G, mu, n, s, v):
+    for i in range(3):
+        acc = vnom[i]
+        for k in range(n):
+            acc += mu[k] * G[k, i]
+        v[i] = _clip_box(acc, s)
+
+
+@njit(cache=True)
+def _dot_row(G, k, v):
+    return G[k, 0] * v[0] + G[k, 1] * v[1] + G[k, 2] * v[2]
+
+
+@njit(cache=True)
+def cone_barrier_terms(obs, k, delta):
+    """``(h, ḣ, G0, G1, G2, a0)`` of cone slot ``k`` enlarged by ``delta``: ``ḧ = G·v + a0``."""
+    b0 = obs[_k.OB_SENSOR]; b1 = obs[_k.OB_SENSOR + 1]; b2 = obs[_k.OB_SENSOR + 2]
+    w0 = obs[_k.OB_W]; w1 = obs[_k.OB_W + 1]; w2 = obs[_k.OB_W + 2]
+    J0 = obs[_k.OB_J]; J1 = obs[_k.OB_J + 1]; J2 = obs[_k.OB_J + 2]
+    o = _k.OB_CONES + _k.OB_CONE_STRIDE * k
+    c0 = obs[o]; c1 = obs[o + 1]; c2 = obs[o + 2]
+    alpha = obs[o + 3]
+    # gyroscopic term J̃⁻¹(ω̃ × J̃ω̃)
+    Jw0 = J0 * w0; Jw1 = J1 * w1; Jw2 = J2 * w2
+    g0 = (w1 * Jw2 - w2 * Jw1) / J0
+    g1 = (w2 * Jw0 - w0 * Jw2) / J1
+    g2 = (w0 * Jw1 - w1 * Jw0) / J2
+    p = b0 * c0 + b1 * c1 + b2 * c2
+    h = math.cos(min(alpha + delta, math.pi)) - p
+    x0 = b1 * c2 - b2 * c1        # b × c
+    x1 = b2 * c0 - b0 * c2
+    x2 = b0 * c1 - b1 * c0
+    hd = -(w0 * x0 + w1 * x1 + w2 * x2)
+    y0 = c1 * w2 - c2 * w1         # c × ω
+    y1 = c2 * w0 - c0 * w2
+    y2 = c0 * w1 - c1 * w0
+    z0 = b1 * y2 - b2 * y1         # b × (c × ω)
+    z1 = b2 * y0 - b0 * y2
+    z2 = b0 * y1 - b1 * y0
+    a0 = x0 * g0 + x1 * g1 + x2 * g2 - (w0 * z0 + w1 * z1 + w2 * z2)
+    G0 = -obs[_k.OB_UMAX] * x0 / J0
+    G1 = -obs[_k.OB_UMAX + 1] * x1 / J1
+    G2 = -obs[_k.OB_UMAX + 2] * x2 / J2
+    return h, hd, G0, G1, G2, a0
+
+
+@njit(cache=True)
+def shield_action(obs, action, params, max_cones, v, out):
+    """Filtered normalised action of ``action`` at observation ``obs``, written to ``v``.
+
+    ``obs`` is a raw (not normalised) observation of ``SlewEnv`` with ``max_cones``
+    slots. Returns the number of conditions that changed the action.
+    """
+    # policy action, saturated as the environment would, NaN → 0 as it does
+    vnom = np.empty(3)
+    for i in range(3):
+        a = action[i]
+        if a != a:
+            a = 0.0
+        vnom[i] = _clip_box(a, 1.0)
+        v[i] = vnom[i]
+    out[F_ACTIVE] = 0.0
+    out[F_FEASIBLE] = 1.0
+    out[F_MIN_SLACK] = np.inf
+
+    inv_p = obs[_k.OB_INV_P]
+    s = 1.0 if inv_p <= 0.0 else 3.0 ** (-inv_p)
+    lam = params[P_LAMBDA]
+    brake = params[P_BRAKE]
+    delta0 = params[P_MARGIN]
+
+    t0 = obs[_k.OB_TARGET]; t1 = obs[_k.OB_TARGET + 1]; t2 = obs[_k.OB_TARGET + 2]
+    if obs[_k.OB_J] <= 0.0 or obs[_k.OB_J + 1] <= 0.0 or obs[_k.OB_J + 2] <= 0.0:
+        return 0
+
+    n = 0
+    ncon = min(max_cones, MAX_CONES)
+    G = np.zeros((MAX_CONES, 3))
+    d = np.zeros(MAX_CONES)
+    for k in range(ncon):
+        o = _k.OB_CONES + _k.OB_CONE_STRIDE * k
+        if obs[o + 5] < 0.5:
+            continue
+        c0 = obs[o]; c1 = obs[o + 1]; c2 = obs[o + 2]
+        alpha = obs[o + 3]
+        # the margin never closes the target off: at most half the target's own clearance
+        ct = t0 * c0 + t1 * c1 + t2 * c2
+        tgt_margin = math.acos(min(1.0, max(-1.0, ct))) - alpha
+        delta = min(delta0, max(0.0, 0.5 * tgt_margin))
+        h, hd, G0, G1, G2, a0 = cone_barrier_terms(obs, k, delta)
+        A = s * (abs(G0) + abs(G1) + abs(G2))
+        if A <= 1e-12:
+            continue
+        if hd < 0.0:
+            beta = brake * A
+            hb = h - hd * hd / (2.0 * beta)
+            need = beta * (1.0 - lam * hb / (-hd))
+        else:
+            need = -2.0 * lam * hd - lam * lam * h
+        dk = need - a0
+        slack = G0 * vnom[0] + G1 * vnom[1] + G2 * vnom[2] - dk
+        if slack < out[F_MIN_SLACK]:
+            out[F_MIN_SLACK] = slack
+        # kept even when the policy's action meets it: moving v for another cone may break it
+        G[n, 0] = G0; G[n, 1] = G1; G[n, 2] = G2
+        d[n] = dk
+        n += 1
+    if n == 0:
+        return 0
+    mu = np.zeros(n)
+    # any condition unmet by the policy's action?
+    unmet = 0
+    for k in range(n):
+        if _dot_row(G, k, vnom) < d[k]:
+            unmet += 1
+    if unmet == 0:
+        return 0
+    sweeps = int(params[P_SWEEPS])
+    for _ in range(max(1, sweeps)):
+        changed = False
+        for k in range(n):
+            # smallest μ_k ≥ 0 with G_k·v(μ) ≥ d_k, the others held (monotone in μ_k)
+            old = mu[k]
+            mu[k] = 0.0
+            _v_of(vnom, G, mu, n, s, v)
+            if _dot_row(G, k, v) >= d[k]:
+                if old != 0.0:
+                    changed = True
+                continue
+            lo = 0.0
+            hi = 1.0
+            mu[k] = hi
+            _v_of(vnom, G, mu, n, s, v)
+            while _dot_row(G, k, v) < d[k] and hi < _MU_MAX:
+                lo = hi
+                hi *= 4.0
+                mu[k] = hi
+                _v_of(vnom, G, mu, n, s, v)
+            for _it in range(_BISECT):
+                mid = 0.5 * (lo + hi)
+                mu[k] = mid
+                _v_of(vnom, G, mu, n, s, v)
+                if _dot_row(G, k, v) >= d[k]:
+                    hi = mid
+                else:
+                    lo = mid
+            mu[k] = hi
+            if abs(hi - old) > 1e-9 * (1.0 + hi):
+                changed = True
+        if not changed:
+            break
+    _v_of(vnom, G, mu, n, s, v)
+    active = 0
+    feasible = 1.0
+    for k in range(n):
+        if mu[k] > 0.0:
+            active += 1
+        sl = _dot_row(G, k, v) - d[k]
+        if sl < -1e-9 * (1.0 + abs(d[k])):
+            feasible = 0.0
+        if sl < out[F_MIN_SLACK]:
+            out[F_MIN_SLACK] = sl
+    out[F_ACTIVE] = active
+    out[F_FEASIBLE] = feasible
+    return active
+
+
+@njit(cache=True)
+def shield_batch(obs, actions, params, max_cones, v, out):
+    """``shield_action`` row by row (``obs`` (N, L), ``actions``/``v`` (N, 3), ``out`` (N, OUT_LENGTH))."""
+    for j in range(obs.shape[0]):
+        shield_action(obs[j], actions[j], params, max_cones, v[j], out[j])

@@ -1,0 +1,159 @@
+"""``ConeShield``: a keep-out-cone safety filter for any policy flying ``SlewEnv``.
+
+A control barrier function on the observation (``slew_env.core.shield``) moves the
+policy's action only as much as needed to keep the sensor out of the cones, each
+enlarged by ``margin_deg``. It needs no more than the observation, so the filter
+that trained with a policy can fly with it. Use it as a wrapper::
+
+    env = ConeShield(gym.make("slew_env/Slew-v0", task_distribution="pointing-cones"))
+
+or on raw observations and actions (one or a batch)::
+
+    shield = ConeShieldFilter(max_cones=4)
+    safe_action = shield(obs, action)
+
+``info["shield_active"]`` is the number of cone conditions that changed the action of
+the step, ``info["shield_feasible"]`` whether the torque box could meet them all (a
+policy that drove in too fast gets the strongest push away instead).
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+
+from .core import env_kernels as _k
+from .core import shield as _s
+
+
+class ConeShieldFilter:
+    """The filter as a function of (raw observation, action); see ``slew_env.core.shield``.
+
+    ==================  ========  ===================================================
+    Argument            Default   Meaning
+    ==================  ========  ===================================================
+    ``max_cones``       4         cone slots of the observation
+    ``margin_deg``      0.5       every cone enlarged by this (deg), at most half the
+                                  target's clearance from that cone
+    ``barrier_rate``    20.0      λ, per time unit T: how fast the margin may be used
+    ``brake``           0.3       braking deceleration assumed, as a fraction of the
+                                  largest the torque box gives away from the cone
+    ``sweeps``          20        dual sweeps over the cones (several near at once)
+    ==================  ========  ===================================================
+    """
+
+    def __init__(self, max_cones: int = 4, margin_deg: float = 0.5, barrier_rate: float = 20.0,
+                 brake: float = 0.3, sweeps: int = 20):
+        def positive(name, x, upper=math.inf):
+            x = float(x)
+            if not (math.isfinite(x) and 0.0 < x <= upper):
+                raise ValueError(f"{name}: must be a finite number in (0, {upper}], got {x!r}")
+            return x
+
+        if int(max_cones) != max_cones or not 0 <= max_cones <= _s.MAX_CONES:
+            raise ValueError(f"max_cones: must be a whole number in [0, {_s.MAX_CONES}], got {max_cones!r}")
+        margin = float(margin_deg)
+        if not (math.isfinite(margin) and 0.0 <= margin < 90.0):
+            raise ValueError(f"margin_deg: must be a finite number in [0, 90), got {margin_deg!r}")
+        if int(sweeps) != sweeps or sweeps < 1:
+            raise ValueError(f"sweeps: must be a whole number >= 1, got {sweeps!r}")
+        self.max_cones = int(max_cones)
+        self.margin_deg = margin
+        self.barrier_rate = positive("barrier_rate", barrier_rate)
+        self.brake = positive("brake", brake, 1.0)
+        self.sweeps = int(sweeps)
+        self._params = _s.make_params(math.radians(margin), self.barrier_rate, self.brake, self.sweeps)
+        self._len = _k.obs_length(self.max_cones)
+        self.last = np.zeros(_s.OUT_LENGTH)
+
+    def config(self) -> dict:
+        return {"margin_deg": self.margin_deg, "barrier_rate": self.barrier_rate, "brake": self.brake,
+                "sweeps": self.sweeps}
+
+    def __call__(self, obs, action) -> np.ndarray:
+        """Filtered action(s): ``obs`` (L,) or (N, L) raw observations, ``action`` (3,) or (N, 3)."""
+        o = np.asarray(obs, dtype=np.float64)
+        a = np.asarray(action, dtype=np.float64)
+        single = o.ndim == 1
+        o2 = o.reshape(1, -1) if single else o
+        a2 = a.reshape(1, -1) if a.ndim == 1 else a
+        if o2.ndim != 2 or o2.shape[1] != self._len:
+            raise ValueError(f"obs: expected shape ({self._len},) or (N, {self._len}) for max_cones="
+                             f"{self.max_cones}, got {o.shape}")
+        if a2.ndim != 2 or a2.shape != (o2.shape[0], 3):
+            raise ValueError(f"action: expected shape (3,) or ({o2.shape[0]}, 3), got {a.shape}")
+        v = np.empty((o2.shape[0], 3))
+        out = np.empty((o2.shape[0], _s.OUT_LENGTH))
+        _s.shield_batch(np.ascontiguousarray(o2), np.ascontiguousarray(a2), self._params, self.max_cones, v, out)
+        self.last = out[0] if single else out
+        return v[0] if single else v
+
+
+class ConeShield(gym.Wrapper):
+    """``SlewEnv`` whose actions pass through ``ConeShieldFilter`` (arguments as there)."""
+
+    def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
+                 sweeps: int = 20):
+        super().__init__(env)
+        max_cones = getattr(env.unwrapped, "max_cones", None)
+        if max_cones is None:
+            raise ValueError("env: ConeShield wraps a slew_env SlewEnv (it reads the cones from its observation)")
+        self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps)
+        self._obs = None
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._obs = obs
+        return obs, info
+
+    def step(self, action):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        arr = np.asarray(action, dtype=np.float64)
+        if arr.shape != (3,):
+            raise ValueError(f"action: expected shape (3,), got {arr.shape}")
+        safe = self.filter(self._obs, arr)
+        obs, reward, terminated, truncated, info = self.env.step(safe)
+        self._obs = obs
+        info["shield_active"] = int(self.filter.last[_s.F_ACTIVE])
+        info["shield_feasible"] = bool(self.filter.last[_s.F_FEASIBLE] > 0.5)
+        return obs, reward, terminated, truncated, info
+
+
+class ConeShieldVector(gym.vector.VectorWrapper):
+    """``SlewVectorEnv`` (or any vector of ``SlewEnv`` copies) whose batched actions pass through
+    ``ConeShieldFilter``; arguments as ``ConeShield``. ``infos["shield_active"]`` is an array."""
+
+    def __init__(self, env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
+                 sweeps: int = 20):
+        super().__init__(env)
+        max_cones = getattr(env, "max_cones", None)
+        if max_cones is None:
+            max_cones = _obs_max_cones(env.single_observation_space.shape)
+        self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps)
+        self._obs = None
+
+    def reset(self, **kwargs):
+        obs, infos = self.env.reset(**kwargs)
+        self._obs = obs
+        return obs, infos
+
+    def step(self, actions):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        safe = self.filter(self._obs, actions)
+        obs, rewards, terminations, truncations, infos = self.env.step(safe)
+        self._obs = obs
+        last = np.atleast_2d(self.filter.last)
+        infos = dict(infos)
+        infos["shield_active"] = last[:, _s.F_ACTIVE].astype(int)
+        infos["shield_feasible"] = last[:, _s.F_FEASIBLE] > 0.5
+        return obs, rewards, terminations, truncations, infos
+
+
+def _obs_max_cones(shape) -> int:
+    n = (int(shape[0]) - _k.OB_CONES) if shape else -1
+    if n < 0 or n % _k.OB_CONE_STRIDE:
+        raise ValueError(f"env: observations of shape {shape} are not SlewEnv observations")
+    return n // _k.OB_CONE_STRIDE

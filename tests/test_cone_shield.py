@@ -1,0 +1,291 @@
+"""ConeShield: the keep-out-cone safety filter on the environment's observation."""
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from slew_env import SlewEnv, SlewProblem
+from slew_env.core import dynamics
+from slew_env.core import env_kernels as K
+from slew_env.core import shield as S
+from slew_env.shield import ConeShield, ConeShieldFilter
+
+
+def _cone_problem(J=(0.6, 0.9, 1.0), umax=(1.0, 0.7, 1.0), norm="inf"):
+    # sensor +x, target 100° away about z, a 20° cone centred on the short path at 50°
+    return SlewProblem(inertia=J, torque_max=umax, torque_norm=norm, q0=[1, 0, 0, 0], sensor_axis=[1, 0, 0],
+                       sensor_target=[math.cos(math.radians(100)), math.sin(math.radians(100)), 0.0],
+                       cones=[{"axis": [math.cos(math.radians(50)), math.sin(math.radians(50)), 0.05],
+                               "half_angle_deg": 20.0}])
+
+
+def _obs64(env):
+    obs = np.zeros(K.obs_length(env.max_cones))
+    K.write_obs(env.task_array, env.state, obs)
+    return obs
+
+
+def _pd(obs):
+    """Straight at the target: a PD law on the error quaternion (enters the cone across the path)."""
+    dq = obs[K.OB_DQ:K.OB_DQ + 4]
+    w = obs[K.OB_W:K.OB_W + 3]
+    ang = 2.0 * math.atan2(np.linalg.norm(dq[1:]), dq[0])
+    axis = dq[1:] / max(np.linalg.norm(dq[1:]), 1e-12)
+    return np.clip(5.0 * ang * axis - 3.0 * w, -1.0, 1.0)
+
+
+@pytest.mark.parametrize("v", [[0.0, 0.0, 0.0], [1.0, -0.3, 0.5], [-0.2, 0.9, -1.0]])
+def test_barrier_terms_are_the_derivatives_of_the_flown_margin(v):
+    """h(τ) of the propagated body equals h + ḣτ + ½(G·v + a0)τ² to third order."""
+    env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
+    # physical units (time unit T = 10 s): the filter works on the scale-free observation
+    env.reset(options={"problem": _cone_problem(J=(60.0, 90.0, 100.0))})
+    T = env.problem.time_unit
+    assert T == pytest.approx(10.0)
+    # put the body in a spinning state near the cone
+    x = np.array([math.cos(0.3), 0.05, 0.02, math.sin(0.3), 0.4 / T, -0.3 / T, 0.7 / T])
+    x[:4] /= np.linalg.norm(x[:4])
+    task = env.task_array
+    obs = np.zeros(K.obs_length(env.max_cones))
+    K.write_obs(task, x, obs)
+    h, hd, G0, G1, G2, a0 = S.cone_barrier_terms(obs, 0, 0.0)
+    hdd = G0 * v[0] + G1 * v[1] + G2 * v[2] + a0
+    assert abs(G0) + abs(G1) + abs(G2) > 0.1 and abs(hd) > 0.01    # a non-trivial state
+    p = env.problem
+    u = np.asarray(v) * np.asarray(p.torque_max)                     # per-axis bound: no scaling
+    for tau in (2e-3, 1e-3):
+        xs = dynamics.propagate(x.copy(), u, np.asarray(p.inertia, float), tau * T, 50)
+        xe = xs[-1] if np.ndim(xs) == 2 else xs
+        obs_e = np.zeros_like(obs)
+        K.write_obs(task, np.asarray(xe, float), obs_e)
+        h_e = S.cone_barrier_terms(obs_e, 0, 0.0)[0]
+        taylor = h + hd * tau + 0.5 * hdd * tau * tau
+        # the second-order term is ~1e-6..1e-7 here; the remainder is third order
+        assert abs(h_e - taylor) < 2e-3 * abs(0.5 * hdd * tau * tau) + 5e-9 * (tau / 1e-3) ** 3
+
+
+def test_margin_uses_the_true_cone_geometry():
+    env = SlewEnv(task_distribution="pointing-cones")
+    env.reset(options={"problem": _cone_problem()})
+    obs = _obs64(env)
+    h = S.cone_barrier_terms(obs, 0, 0.0)[0]
+    margin = obs[K.OB_CONES + 4]           # angle(sensor, axis) - half-angle
+    alpha = obs[K.OB_CONES + 3]
+    assert h == pytest.approx(math.cos(alpha) - math.cos(alpha + margin), abs=1e-12)
+    assert h > 0
+
+
+def test_far_from_the_cones_the_action_is_unchanged():
+    f = ConeShieldFilter()
+    env = SlewEnv(task_distribution="pointing-cones")
+    env.reset(options={"problem": _cone_problem()})
+    obs = _obs64(env)                      # at rest, 30° from the cone
+    for a in ([1.0, -1.0, 0.5], [0.0, 0.0, 0.0], [-0.25, 0.75, 1.0]):
+        out = f(obs, np.array(a))
+        assert np.array_equal(out, np.array(a))
+        assert f.last[S.F_ACTIVE] == 0
+    # no cones at all: never filtered
+    env2 = SlewEnv(task_distribution="full-attitude")
+    o2, _ = env2.reset(seed=3)
+    assert np.array_equal(f(o2, np.array([1.0, 1.0, -1.0])), [1.0, 1.0, -1.0])
+
+
+def test_pd_law_enters_the_cone_without_the_shield_and_not_with_it():
+    def fly(env):
+        obs, _ = env.reset(options={"problem": _cone_problem()})
+        worst, active = math.inf, 0
+        for _ in range(400):
+            obs, _, term, _, info = env.step(_pd(obs))
+            worst = min(worst, info["min_cone_margin"])
+            active += info.get("shield_active", 0)
+            if term:
+                break
+        return info, worst, active
+
+    info, worst, _ = fly(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False))
+    assert worst < -math.radians(5)                       # straight through the cone
+    info, worst, active = fly(ConeShield(SlewEnv(task_distribution="pointing-cones")))
+    assert not info["violation"] and info["is_success"]   # round it, and onto the target
+    assert worst > 0.0 and active > 0
+
+
+def test_pd_law_with_the_shield_on_drawn_cone_problems():
+    """30 drawn pointing-cones tasks: the PD law alone violates most; with the filter none."""
+    bare = ConeShield(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False))
+    counts = {"bare": 0, "shield": 0}
+    margins = []
+    for seed in range(30):
+        for name, env in (("bare", SlewEnv(task_distribution="pointing-cones")),
+                          ("shield", ConeShield(SlewEnv(task_distribution="pointing-cones")))):
+            obs, _ = env.reset(seed=seed)
+            worst = math.inf
+            for _ in range(400):
+                obs, _, term, _, info = env.step(_pd(obs))
+                worst = min(worst, info["min_cone_margin"])
+                if term:
+                    break
+            counts[name] += info["violation"]
+            if name == "shield":
+                margins.append(worst)
+    del bare
+    assert counts["bare"] >= 15
+    assert counts["shield"] == 0
+    assert min(margins) > 0.0
+
+
+def test_p_norm_bound_filtered_action_stays_in_the_inscribed_box():
+    f = ConeShieldFilter()
+    env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
+    obs, _ = env.reset(options={"problem": _cone_problem(norm=2)})
+    seen = 0
+    for _ in range(200):
+        a = _pd(obs)
+        v = f(obs, a)
+        if f.last[S.F_ACTIVE] > 0:
+            seen += 1
+            assert np.all(np.abs(v) <= 3 ** -0.5 + 1e-12)
+        obs, _, term, _, info = env.step(v)
+        assert not info["violation"]
+        if term:
+            break
+    assert seen > 0
+
+
+def test_batch_equals_rows_and_nan_action_is_zero():
+    f = ConeShieldFilter()
+    env = SlewEnv(task_distribution="pointing-cones")
+    obs_rows, acts = [], []
+    for seed in range(6):
+        o, _ = env.reset(seed=seed)
+        for _ in range(10):
+            o, *_ = env.step(_pd(o))
+        obs_rows.append(o)
+        acts.append(_pd(o))
+    O, A = np.array(obs_rows), np.array(acts)
+    batch = f(O, A)
+    rows = np.array([f(o, a) for o, a in zip(O, A)])
+    assert np.array_equal(batch, rows)
+    v = f(obs_rows[0], np.array([np.nan, 0.5, np.nan]))
+    assert np.isfinite(v).all()
+
+
+def test_bad_arguments_name_the_field():
+    with pytest.raises(ValueError, match="margin_deg"):
+        ConeShieldFilter(margin_deg=-1)
+    with pytest.raises(ValueError, match="barrier_rate"):
+        ConeShieldFilter(barrier_rate=float("nan"))
+    with pytest.raises(ValueError, match="brake"):
+        ConeShieldFilter(brake=1.5)
+    with pytest.raises(ValueError, match="sweeps"):
+        ConeShieldFilter(sweeps=0)
+    with pytest.raises(ValueError, match="max_cones"):
+        ConeShieldFilter(max_cones=99)
+    f = ConeShieldFilter(max_cones=4)
+    with pytest.raises(ValueError, match="obs"):
+        f(np.zeros(10), np.zeros(3))
+    with pytest.raises(ValueError, match="action"):
+        f(np.zeros(K.obs_length(4)), np.zeros(4))
+    with pytest.raises(ValueError, match="env"):
+        ConeShield(gym.make("Pendulum-v1"))
+    env = ConeShield(SlewEnv(task_distribution="pointing-cones"))
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(3))
+
+
+def test_wrapper_reports_filter_activity_in_info():
+    env = ConeShield(SlewEnv(task_distribution="pointing-cones"))
+    obs, _ = env.reset(options={"problem": _cone_problem()})
+    keys = set()
+    any_active = False
+    for _ in range(100):
+        obs, _, term, _, info = env.step(_pd(obs))
+        keys |= set(info)
+        any_active |= info["shield_active"] > 0
+        if term:
+            break
+    assert {"shield_active", "shield_feasible"} <= keys and any_active
+
+
+def test_vector_wrapper_flies_each_copy_as_the_single_wrapper():
+    from slew_env import SlewVectorEnv
+    from slew_env.shield import ConeShieldVector
+
+    n = 4
+    problems = []
+    for seed in range(n):
+        e = SlewEnv(task_distribution="pointing-cones")
+        e.reset(seed=seed)
+        problems.append(e.problem)
+    vec = ConeShieldVector(SlewVectorEnv(num_envs=n, task_distribution="pointing-cones"))
+    obs, _ = vec.reset(seed=11, options={"problems": problems})
+    singles = []
+    for i in range(n):
+        env = ConeShield(SlewEnv(task_distribution="pointing-cones"))
+        o, _ = env.reset(options={"problem": problems[i]})
+        np.testing.assert_array_equal(o, obs[i])
+        singles.append((env, o))
+    active = 0
+    for _ in range(30):
+        acts = np.array([_pd(o) for o in obs])
+        obs, _, term, _, infos = vec.step(acts)
+        active += int(infos["shield_active"].sum())
+        for i, (env, o) in enumerate(singles):
+            o2, _, t2, _, _ = env.step(_pd(o))
+            singles[i] = (env, o2)
+            if not term[i]:
+                np.testing.assert_array_equal(o2, obs[i])
+        if term.any():
+            break
+    assert active > 0
+
+
+def test_training_config_wraps_the_environments_and_evaluation_follows_the_run():
+    from training.rl.evaluate import resolve_shield
+    from training.rl.train import load_config, make_vec, shield_kwargs
+
+    cfg = load_config("ppo", "pointing-cones")
+    assert shield_kwargs(cfg) == {"margin_deg": 0.5, "barrier_rate": 20.0, "brake": 0.3}
+    venv = make_vec(cfg, 2, seed=0)
+    assert all(isinstance(e, ConeShield) for e in venv.envs)
+    venv.reset()
+    _, _, _, infos = venv.step(np.zeros((2, 3), np.float32))
+    assert "shield_active" in infos[0]
+    assert shield_kwargs(load_config("ppo", "full-attitude")) is None
+    assert shield_kwargs({"shield": True}) == {}
+    with pytest.raises(ValueError, match="shield"):
+        shield_kwargs({"shield": {"margin": 1.0}})
+    with pytest.raises(ValueError, match="shield.brake"):
+        shield_kwargs({"shield": {"brake": 0.0}})
+    with pytest.raises(ValueError, match="shield"):
+        shield_kwargs({"shield": "yes"})
+    # evaluation: the run's filter by default, the defaults on request, none when off
+    assert resolve_shield("policy", cfg) == shield_kwargs(cfg)
+    assert resolve_shield("off", cfg) is None
+    assert resolve_shield("on", {"shield": None}) == {}
+    assert resolve_shield("policy", {"shield": None}) is None
+    with pytest.raises(ValueError, match="--shield"):
+        resolve_shield("maybe", cfg)
+
+
+def test_two_overlapping_cones_across_the_path_are_not_squeezed_through():
+    """Two 20° cones whose axes are 39.4° apart overlap across the short path: the PD law cuts
+    through the overlap (−0.28°); through the filter it stays clear of both (it cannot pass)."""
+    d = math.radians
+    prob = SlewProblem(inertia=(0.5, 0.8, 1.0), torque_max=1.0, q0=[1, 0, 0, 0], sensor_axis=[1, 0, 0],
+                       sensor_target=[math.cos(d(120)), math.sin(d(120)), 0.0],
+                       cones=[{"axis": [math.cos(d(60)), math.sin(d(60)), math.sin(d(21))], "half_angle_deg": 20.0},
+                              {"axis": [math.cos(d(60)), math.sin(d(60)), -math.sin(d(21))], "half_angle_deg": 20.0}])
+    worst = {}
+    for shield in (False, True):
+        env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
+        env = ConeShield(env) if shield else env
+        obs, _ = env.reset(options={"problem": prob})
+        worst[shield] = math.inf
+        for _ in range(400):
+            obs, _, term, _, info = env.step(_pd(obs))
+            worst[shield] = min(worst[shield], info["min_cone_margin"])
+            if term:
+                break
+    assert worst[False] < -math.radians(0.1)
+    assert worst[True] > 0.0
