@@ -125,6 +125,12 @@ def policy_kwargs_from(cfg: dict) -> dict:
         if name is None:
             raise ValueError(f"policy_kwargs.activation_fn: unknown {act!r}; known: {sorted(_ACTIVATIONS)}")
         kw["activation_fn"] = getattr(nn, name)
+    fx = kw.get("features_extractor_class")
+    if isinstance(fx, str):
+        from .features import EXTRACTORS
+        if fx not in EXTRACTORS:
+            raise ValueError(f"policy_kwargs.features_extractor_class: unknown {fx!r}; known: {sorted(EXTRACTORS)}")
+        kw["features_extractor_class"] = EXTRACTORS[fx]
     return kw
 
 
