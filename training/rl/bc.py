@@ -124,16 +124,14 @@ def control_from_record(rec: dict) -> Optional[Callable]:
     return control
 
 
-def _env_for(env_kwargs: dict, shield: Optional[dict] = None):
-    """A ``SlewEnv`` with a run's ``env_kwargs``; ``ConeShield``-wrapped when ``shield`` is not None."""
+def _env_for(env_kwargs: dict, shield: Optional[dict] = None, capture: Optional[dict] = None):
+    """A ``SlewEnv`` with a run's ``env_kwargs``, wrapped as the policy flies it (``train.wrap_controller``)."""
     from slew_env import SlewEnv
 
+    from .train import wrap_controller
+
     kw = {k: v for k, v in (env_kwargs or {}).items() if k not in ("max_episode_steps", "task_distribution")}
-    env = SlewEnv(**kw)
-    if shield is not None:
-        from slew_env.shield import ConeShield
-        env = ConeShield(env, **shield)
-    return env
+    return wrap_controller(SlewEnv(**kw), shield, capture)
 
 
 def expert_action(control, t0: float, dt: float, umax: np.ndarray, mode: str = "average", n_sub: int = 32):

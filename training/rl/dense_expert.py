@@ -280,10 +280,10 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
 
     from .bc import _env_for
     from .evaluate import load_policy
-    from .train import shield_kwargs
+    from .train import capture_kwargs, shield_kwargs
 
     model, vn, cfg = load_policy(policy)
-    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg))   # fly the policy as it trained
+    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg), capture_kwargs(cfg))   # as it trained
     spec = GenerationSpec(family=family, seed=int(seed), n=int(n_problems))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

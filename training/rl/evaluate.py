@@ -128,6 +128,7 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
     steps = 0
     shield_steps = 0
     shield_infeasible = 0
+    captured_steps = 0
     for steps in range(1, max_steps + 1):
         o = vn.normalize_obs(obs[None]) if vn is not None else obs[None]
         action, _ = model.predict(o, deterministic=True)
@@ -135,6 +136,7 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
         obs, _, term, trunc, info = env.step(a)
         violation |= bool(info["violation"])
         min_margin = min(min_margin, float(info["min_cone_margin"]))
+        captured_steps += bool(info.get("captured"))
         if info.get("shield_active"):
             shield_steps += 1
             shield_infeasible += not info.get("shield_feasible", True)
@@ -149,7 +151,8 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
            "final_attitude_error_deg": float(np.degrees(info["attitude_error"])),
            "final_rate_error": float(info["rate_error"]),
            "min_cone_margin_deg": float(np.degrees(min_margin)) if math.isfinite(min_margin) else None,
-           "terminated": bool(term), "shield_steps": shield_steps, "shield_infeasible_steps": shield_infeasible}
+           "terminated": bool(term), "shield_steps": shield_steps, "shield_infeasible_steps": shield_infeasible,
+           "captured_steps": captured_steps}
     if history:
         res["history"] = {k: np.asarray(v) for k, v in H.items()}
     return res
@@ -249,6 +252,7 @@ def summarise(episodes: list) -> dict:
         "n_truncated": sum(not e["terminated"] for e in episodes),
         "n_shielded": sum(bool(e.get("shield_steps")) for e in episodes),
         "n_shield_infeasible": sum(bool(e.get("shield_infeasible_steps")) for e in episodes),
+        "n_captured": sum(bool(e.get("captured_steps")) for e in episodes),
         "tf_policy_median": tfp["median"], "tf_policy_mean": tfp["mean"],
         "solver_ok": outcomes.get("ok", 0), "solver_ok_exact": sum(bool(e.get("optimal_exact")) for e in episodes),
         "solver_failed": outcomes.get("failed", 0),
@@ -265,12 +269,13 @@ def summarise(episodes: list) -> dict:
 def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEFAULT_EVAL_SEED, out=None,
              plot_k: int = 3, solutions=None, solver_workers: int = 1, solve_options=None,
              max_steps: int = DEFAULT_MAX_STEPS, progress: bool = True, command: Optional[str] = None,
-             solve_fn: Optional[str] = None, shield="policy") -> dict:
+             solve_fn: Optional[str] = None, shield="policy", capture="policy") -> dict:
     """Roll the policy out on ``n`` held-out problems and compare with the optimum; returns the results dict.
 
     ``shield``: ``"policy"`` flies the policy with the ``ConeShield`` its run trained with (none if
     it trained without); ``"on"`` adds the filter with its defaults when the run had none; ``"off"``
-    flies the bare network; a dict gives ``ConeShield`` arguments.
+    flies the bare network; a dict gives ``ConeShield`` arguments. ``capture``: the same for
+    the PD capture law near the target (``training.rl.capture.CaptureHandover``).
 
     Writes ``report.md``, ``results.json`` and (``plot_k > 0``) ``overlay.png`` to ``out``
     (default ``<policy dir>/eval-<family>-seed<seed>``).
@@ -299,7 +304,8 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     problems = heldout_problems(family, n, seed)
     env_kwargs = dict(cfg.get("env_kwargs") or {})
     shield_kw = resolve_shield(shield, cfg)
-    env = _env_for(env_kwargs, shield_kw)
+    capture_kw = resolve_capture(capture, cfg)
+    env = _env_for(env_kwargs, shield_kw, capture_kw)
     episodes = []
     t_roll = time.perf_counter()
     histories = {}
@@ -328,7 +334,8 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     summary = summarise(episodes)
     results = {"policy": str(policy), "algo": cfg.get("algo"), "trained_family": cfg.get("family"),
                "family": family, "n": n, "seed": seed, "max_steps": max_steps, "env_kwargs": env_kwargs,
-               "shield": shield_kw, "trained_with_shield": _shield_of(cfg),
+               "shield": shield_kw, "trained_with_shield": _shield_of(cfg), "capture": capture_kw,
+               "trained_with_capture": _capture_of(cfg),
                "solutions": str(solutions) if solutions else None, "summary": summary,
                "timing": {"solve_s": t_solve, "rollout_s": t_roll, "total_s": time.perf_counter() - t0},
                "command": command, "train_info": _train_info(pdir), "episodes": episodes}
@@ -344,6 +351,31 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
 def _shield_of(cfg: dict):
     from .train import shield_kwargs
     return shield_kwargs(cfg)
+
+
+def _capture_of(cfg: dict):
+    from .train import capture_kwargs
+    return capture_kwargs(cfg)
+
+
+def resolve_capture(capture, cfg: dict) -> Optional[dict]:
+    """``CaptureHandover`` arguments for a rollout (None: none); as ``resolve_shield``."""
+    trained = _capture_of(cfg)
+    if isinstance(capture, dict):
+        from .train import capture_kwargs
+        return capture_kwargs({"capture": capture})
+    if capture == "policy":
+        return trained
+    if capture == "on":
+        return trained if trained is not None else capture_kwargs_default()
+    if capture == "off":
+        return None
+    raise ValueError(f"--capture: expected policy, on or off, got {capture!r}")
+
+
+def capture_kwargs_default() -> dict:
+    from .capture import check
+    return check({})
 
 
 def resolve_shield(shield, cfg: dict) -> Optional[dict]:
@@ -412,7 +444,10 @@ def report_markdown(results: dict, with_plot: bool) -> str:
              + f") on {results['n']} held-out `{results['family']}` problems (seed {results['seed']}), "
                f"deterministic, at most {results['max_steps']} control steps"
              + (f", through the keep-out-cone filter `ConeShield` ({_shield_text(results['shield'])})"
-                if results.get("shield") is not None else ", without a safety filter") + ".", ""]
+                if results.get("shield") is not None else ", without a safety filter")
+             + (f", with the capture law within {results['capture']['deg']:g}° of the target (kp "
+                f"{results['capture']['kp']:g}, damping {results['capture']['damping']:g})"
+                if results.get("capture") is not None else "") + ".", ""]
     if results.get("command"):
         lines += ["```", results["command"], "```", ""]
     lines += ["| metric | value |", "|---|---|",
@@ -422,6 +457,7 @@ def report_markdown(results: dict, with_plot: bool) -> str:
               f"| truncated (time limit) | {s['n_truncated']} |",
               f"| episodes where the cone filter changed an action / could not meet a condition | "
               f"{s['n_shielded']} / {s['n_shield_infeasible']} |",
+              f"| episodes the capture law finished | {s['n_captured']} |",
               f"| final time tf_policy at success, median / mean | {_f(s['tf_policy_median'])} / {_f(s['tf_policy_mean'])} |",
               f"| solver: verified optimum / failed / refused | {s['solver_ok']} / {s['solver_failed']} / {s['solver_refused']} |",
               f"| of the verified optima: exact extremals (indirect) / collocation answers | {s['solver_ok_exact']} / "
@@ -573,6 +609,9 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--shield", choices=("policy", "on", "off"), default="policy",
                    help="keep-out-cone safety filter (slew_env.shield.ConeShield): 'policy' as the run trained "
                         "(default), 'on' the filter's defaults where the run had none, 'off' the bare network")
+    p.add_argument("--capture", choices=("policy", "on", "off"), default="policy",
+                   help="PD capture law within a small angle of the target (training.rl.capture): 'policy' as the "
+                        "run trained (default), 'on' its defaults where the run had none, 'off' the network alone")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no solver progress bar")
 
@@ -586,7 +625,8 @@ def run(args) -> int:
         raise ValueError("--solve-options: expected a JSON object")
     res = evaluate(args.policy, args.family, args.n, args.seed, args.out, args.plot_k, args.solutions,
                    args.solver_workers, opts, args.max_steps, not args.no_progress, command=" ".join(sys.argv),
-                   solve_fn=args.solve_fn, shield=args.shield)
+                   solve_fn=args.solve_fn, shield=args.shield,
+                   capture=args.capture)
     s = res["summary"]
     print(f"{s['n']} problems: success {100 * s['success_rate']:.1f} %, violations {s['n_violation']}, "
           f"median tf_policy {_f(s['tf_policy_median'])}, tf_policy/tf_optimal median {_f(s['ratio_median'])} "

@@ -45,10 +45,10 @@ from . import ALGOS, EVAL_ENV_SEED_OFFSET, FAMILIES
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 CONFIG_KEYS = {"n_envs", "n_timesteps", "policy", "policy_kwargs", "hyperparameters", "normalize",
-               "env_kwargs", "eval", "checkpoint", "bc", "shield"}
+               "env_kwargs", "eval", "checkpoint", "bc", "shield", "capture"}
 DEFAULTS = {"policy": "MlpPolicy", "policy_kwargs": {}, "hyperparameters": {}, "normalize": {"norm_obs": True,
             "norm_reward": False}, "env_kwargs": {}, "eval": {"eval_freq": 50000, "n_eval_episodes": 50},
-            "checkpoint": {"save_freq": 100000}, "bc": {}, "shield": None}
+            "checkpoint": {"save_freq": 100000}, "bc": {}, "shield": None, "capture": None}
 _ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU",
                 "silu": "SiLU"}
 
@@ -175,9 +175,30 @@ def shield_kwargs(cfg: dict) -> Optional[dict]:
     return dict(sh)
 
 
+def capture_kwargs(cfg: dict) -> Optional[dict]:
+    """The ``CaptureHandover`` arguments of a config's ``capture`` entry (``training.rl.capture``); None without."""
+    c = cfg.get("capture")
+    if c is None or c is False:
+        return None
+    from .capture import check
+    return check({} if c is True else c)
+
+
+def wrap_controller(env, shield: Optional[dict] = None, capture: Optional[dict] = None):
+    """``env`` as the policy flies it: ``CaptureHandover(ConeShield(env))``, each only when configured
+    (the capture law's actions pass through the cone filter too)."""
+    if shield is not None:
+        from slew_env.shield import ConeShield
+        env = ConeShield(env, **shield)
+    if capture is not None:
+        from .capture import CaptureHandover
+        env = CaptureHandover(env, **capture)
+    return env
+
+
 def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
-    """``make_vec_env`` of Slew-v0 (Monitor-wrapped, copy i seeded with ``seed + i``; ``ConeShield``-wrapped
-    when the config has a ``shield``)."""
+    """``make_vec_env`` of Slew-v0 (Monitor-wrapped, copy i seeded with ``seed + i``; wrapped in
+    ``ConeShield`` / ``CaptureHandover`` when the config has a ``shield`` / ``capture``)."""
     import slew_env  # noqa: F401  (registers Slew-v0)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -186,11 +207,10 @@ def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
         raise ValueError(f"--vec-env: expected dummy or subproc, got {vec_env!r}")
     cls = SubprocVecEnv if vec_env == "subproc" and n_envs > 1 else DummyVecEnv
     # "module:id" makes gymnasium import slew_env (which registers Slew-v0) in SubprocVecEnv workers too
-    shield = shield_kwargs(cfg)
+    shield, capture = shield_kwargs(cfg), capture_kwargs(cfg)
     wrap = {}
-    if shield is not None:
-        from slew_env.shield import ConeShield
-        wrap = {"wrapper_class": ConeShield, "wrapper_kwargs": shield}
+    if shield is not None or capture is not None:
+        wrap = {"wrapper_class": wrap_controller, "wrapper_kwargs": {"shield": shield, "capture": capture}}
     return make_vec_env(f"slew_env:{slew_env.ENV_ID}", n_envs=n_envs, seed=seed, vec_env_cls=cls,
                         env_kwargs=make_env_kwargs(cfg), monitor_kwargs={"info_keywords": ("is_success",)}, **wrap)
 
