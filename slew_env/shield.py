@@ -90,17 +90,24 @@ class ConeShieldFilter:
         return v[0] if single else v
 
 
-class ConeShield(gym.Wrapper):
-    """``SlewEnv`` whose actions pass through ``ConeShieldFilter`` (arguments as there)."""
+class ObservingActionWrapper(gym.Wrapper):
+    """A ``SlewEnv`` wrapper whose action depends on the current (raw) observation.
 
-    def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
-                 sweeps: int = 20):
+    Subclasses implement ``act(obs, action) -> (action sent on, dict of info entries)``;
+    the action arrives as a float64 array of shape (3,). ``name`` names the wrapper in the
+    error raised when the inner environment is not a ``SlewEnv``.
+    """
+
+    name = "this wrapper"
+
+    def __init__(self, env: gym.Env):
         super().__init__(env)
-        max_cones = getattr(env.unwrapped, "max_cones", None)
-        if max_cones is None:
-            raise ValueError("env: ConeShield wraps a slew_env SlewEnv (it reads the cones from its observation)")
-        self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps)
+        if getattr(env.unwrapped, "max_cones", None) is None:
+            raise ValueError(f"env: {self.name} wraps a slew_env SlewEnv (it reads its observation)")
         self._obs = None
+
+    def act(self, obs, action):
+        raise NotImplementedError
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
@@ -113,12 +120,27 @@ class ConeShield(gym.Wrapper):
         arr = np.asarray(action, dtype=np.float64)
         if arr.shape != (3,):
             raise ValueError(f"action: expected shape (3,), got {arr.shape}")
-        safe = self.filter(self._obs, arr)
-        obs, reward, terminated, truncated, info = self.env.step(safe)
+        sent, extra = self.act(self._obs, arr)
+        obs, reward, terminated, truncated, info = self.env.step(sent)
         self._obs = obs
-        info["shield_active"] = int(self.filter.last[_s.F_ACTIVE])
-        info["shield_feasible"] = bool(self.filter.last[_s.F_FEASIBLE] > 0.5)
+        info.update(extra)
         return obs, reward, terminated, truncated, info
+
+
+class ConeShield(ObservingActionWrapper):
+    """``SlewEnv`` whose actions pass through ``ConeShieldFilter`` (arguments as there)."""
+
+    name = "ConeShield"
+
+    def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
+                 sweeps: int = 20):
+        super().__init__(env)
+        self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps)
+
+    def act(self, obs, action):
+        safe = self.filter(obs, action)
+        return safe, {"shield_active": int(self.filter.last[_s.F_ACTIVE]),
+                      "shield_feasible": bool(self.filter.last[_s.F_FEASIBLE] > 0.5)}
 
 
 class ConeShieldVector(gym.vector.VectorWrapper):

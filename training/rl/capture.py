@@ -28,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from slew_env.core import env_kernels as _k
+from slew_env.shield import ObservingActionWrapper
 
 KEYS = ("deg", "kp", "damping")
 DEFAULTS = {"deg": 1.0, "kp": 5.0, "damping": 0.8}
@@ -77,38 +78,23 @@ def pd_action(obs, kp: float, damping: float, dt: float) -> np.ndarray:
     return a[0] if single else a
 
 
-class CaptureHandover(gym.Wrapper):
-    """The PD law instead of the policy within ``deg`` of the target (see the module docstring).
+class CaptureHandover(ObservingActionWrapper):
+    """The settling law instead of the policy within ``deg`` of the target (see the module docstring).
 
-    ``info["captured"]``: whether the PD law flew the step.
+    ``info["captured"]``: whether the settling law flew the step.
     """
+
+    name = "CaptureHandover"
 
     def __init__(self, env: gym.Env, deg: float = 1.0, kp: float = 5.0, damping: float = 0.8):
         super().__init__(env)
-        if getattr(env.unwrapped, "max_cones", None) is None:
-            raise ValueError("env: CaptureHandover wraps a slew_env SlewEnv (it reads the error and rates from its "
-                             "observation)")
         kw = check({"deg": deg, "kp": kp, "damping": damping})
         self.deg, self.kp, self.damping = kw["deg"], kw["kp"], kw["damping"]
         self.dt = float(env.unwrapped.control_dt)
         self._limit = math.radians(self.deg)
-        self._obs = None
 
-    def reset(self, **kwargs):
-        obs, info = self.env.reset(**kwargs)
-        self._obs = obs
-        return obs, info
-
-    def step(self, action):
-        if self._obs is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (3,):
-            raise ValueError(f"action: expected shape (3,), got {a.shape}")
-        captured = bool(error_angle(self._obs) < self._limit)
+    def act(self, obs, action):
+        captured = bool(error_angle(obs) < self._limit)
         if captured:
-            a = pd_action(self._obs, self.kp, self.damping, self.dt)
-        obs, reward, terminated, truncated, info = self.env.step(a)
-        self._obs = obs
-        info["captured"] = captured
-        return obs, reward, terminated, truncated, info
+            action = pd_action(obs, self.kp, self.damping, self.dt)
+        return action, {"captured": captured}
