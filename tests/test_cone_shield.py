@@ -247,10 +247,22 @@ def test_training_config_wraps_the_environments_and_evaluation_follows_the_run()
     cfg = load_config("ppo", "pointing-cones")
     assert shield_kwargs(cfg) == {"margin_deg": 0.5, "barrier_rate": 20.0, "brake": 0.3}
     venv = make_vec(cfg, 2, seed=0)
-    assert all(isinstance(e, ConeShield) for e in venv.envs)
+
+    def chain(e):
+        out = []
+        while isinstance(e, gym.Wrapper):
+            out.append(type(e).__name__)
+            e = e.env
+        return out
+
+    from training.rl.capture import CaptureHandover
+    for e in venv.envs:                  # the capture law's actions pass through the filter too
+        names = chain(e)
+        assert names.index("CaptureHandover") < names.index("ConeShield")
+        assert isinstance(e, CaptureHandover)
     venv.reset()
     _, _, _, infos = venv.step(np.zeros((2, 3), np.float32))
-    assert "shield_active" in infos[0]
+    assert "shield_active" in infos[0] and "captured" in infos[0]
     assert shield_kwargs(load_config("ppo", "full-attitude")) is None
     assert shield_kwargs({"shield": True}) == {}
     with pytest.raises(ValueError, match="shield"):

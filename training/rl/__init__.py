@@ -20,7 +20,8 @@ EVAL_ENV_SEED_OFFSET = 10_000  # EvalCallback's environment: seed + this
 from pathlib import Path as _Path
 
 # Trained policies shipped with the package (``slew evaluate-rl shipped`` or ``shipped:FAMILY``).
-SHIPPED_POLICIES = {"full-attitude": _Path(__file__).resolve().parent / "policies" / "ppo-full-attitude"}
+SHIPPED_POLICIES = {"full-attitude": _Path(__file__).resolve().parent / "policies" / "ppo-full-attitude",
+                    "pointing-cones": _Path(__file__).resolve().parent / "policies" / "ppo-pointing-cones"}
 
 
 def resolve_policy(policy) -> _Path:

@@ -125,6 +125,8 @@ def policy_kwargs_from(cfg: dict) -> dict:
         if name is None:
             raise ValueError(f"policy_kwargs.activation_fn: unknown {act!r}; known: {sorted(_ACTIVATIONS)}")
         kw["activation_fn"] = getattr(nn, name)
+    if "features_extractor_class" in kw and kw["features_extractor_class"] is None:
+        del kw["features_extractor_class"]            # null: SB3's default (the flattened observation)
     fx = kw.get("features_extractor_class")
     if isinstance(fx, str):
         from .features import EXTRACTORS
