@@ -359,6 +359,11 @@ class SlewEnv(gym.Env):
         return self._st[_k.S_X:_k.S_X + 7].copy()
 
     @property
+    def last_torque(self) -> np.ndarray:
+        """Copy of the torque applied during the last step (physical units; zeros after reset)."""
+        return self._out[_k.R_TORQUE:_k.R_TORQUE + 3].copy()
+
+    @property
     def time(self) -> float:
         """Physical time since reset."""
         return float(self._st[_k.S_TIME])

@@ -140,8 +140,8 @@ def rollout(model, vn, env, problem, max_steps: int = DEFAULT_MAX_STEPS, history
         if info.get("shield_active"):
             shield_steps += 1
             shield_infeasible += not info.get("shield_feasible", True)
-        if history:
-            H["u"].append(a)
+        if history:   # the torque flown: after the cone filter and the capture law, if any
+            H["u"].append(base.last_torque / np.asarray(problem.torque_max, float))
             H["t"].append(info["time"])
             H["att"].append(info["attitude_error"])
             H["sensor"].append(_sensor_inertial(base.state[:4], s_b))
