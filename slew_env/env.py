@@ -234,6 +234,9 @@ class SlewEnv(gym.Env):
     Rendering draws the sensor's path on the unit sphere with the cones, the
     start and the target, and the time histories of the error angle, the rates
     and the torques (``slew_env.rendering``).
+
+    ``slew_env.shield.ConeShield(env)`` filters any policy's actions so that the
+    sensor stays out of the cones (a control barrier function on the observation).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
