@@ -19,6 +19,7 @@ policy that drove in too fast gets the strongest push away instead).
 from __future__ import annotations
 
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -51,13 +52,20 @@ class ConeShieldFilter:
                 raise ValueError(f"{name}: must be a finite number in (0, {upper}], got {x!r}")
             return x
 
-        if int(max_cones) != max_cones or not 0 <= max_cones <= _s.MAX_CONES:
-            raise ValueError(f"max_cones: must be a whole number in [0, {_s.MAX_CONES}], got {max_cones!r}")
+        def whole(name, x, lo, hi):
+            try:
+                ok = float(x) == int(x) and lo <= int(x) <= hi
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok:
+                raise ValueError(f"{name}: must be a whole number in [{lo}, {hi}], got {x!r}")
+            return int(x)
+
+        whole("max_cones", max_cones, 0, _s.MAX_CONES)
         margin = float(margin_deg)
         if not (math.isfinite(margin) and 0.0 <= margin < 90.0):
             raise ValueError(f"margin_deg: must be a finite number in [0, 90), got {margin_deg!r}")
-        if int(sweeps) != sweeps or sweeps < 1:
-            raise ValueError(f"sweeps: must be a whole number >= 1, got {sweeps!r}")
+        whole("sweeps", sweeps, 1, 10_000)
         self.max_cones = int(max_cones)
         self.margin_deg = margin
         self.barrier_rate = positive("barrier_rate", barrier_rate)
@@ -81,6 +89,10 @@ class ConeShieldFilter:
         if o2.ndim != 2 or o2.shape[1] != self._len:
             raise ValueError(f"obs: expected shape ({self._len},) or (N, {self._len}) for max_cones="
                              f"{self.max_cones}, got {o.shape}")
+        if not np.isfinite(o2).all():
+            bad = np.argwhere(~np.isfinite(o2))[0]
+            raise ValueError(f"obs: not finite at {tuple(int(i) for i in bad) if not single else int(bad[1])}; "
+                             "the filter needs a finite observation")
         if a2.ndim != 2 or a2.shape != (o2.shape[0], 3):
             raise ValueError(f"action: expected shape (3,) or ({o2.shape[0]}, 3), got {a.shape}")
         v = np.empty((o2.shape[0], 3))
@@ -136,6 +148,7 @@ class ConeShield(ObservingActionWrapper):
                  sweeps: int = 20):
         super().__init__(env)
         self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps)
+        _warn_control_dt(getattr(env.unwrapped, "control_dt", None), margin_deg)
 
     def act(self, obs, action):
         safe = self.filter(obs, action)
@@ -145,7 +158,10 @@ class ConeShield(ObservingActionWrapper):
 
 class ConeShieldVector(gym.vector.VectorWrapper):
     """``SlewVectorEnv`` (or any vector of ``SlewEnv`` copies) whose batched actions pass through
-    ``ConeShieldFilter``; arguments as ``ConeShield``. ``infos["shield_active"]`` is an array."""
+    ``ConeShieldFilter``; arguments as ``ConeShield``. ``infos["shield_active"]`` and
+    ``infos["shield_feasible"]`` are arrays, with Gymnasium's ``_shield_active`` /
+    ``_shield_feasible`` masks: a copy that ended on the previous step is being reset
+    (next-step autoreset) and its action is ignored, so it has no entry."""
 
     def __init__(self, env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
                  sweeps: int = 20):
@@ -154,11 +170,14 @@ class ConeShieldVector(gym.vector.VectorWrapper):
         if max_cones is None:
             max_cones = _obs_max_cones(env.single_observation_space.shape)
         self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps)
+        _warn_control_dt(getattr(env, "control_dt", None), margin_deg)
         self._obs = None
+        self._ended = None
 
     def reset(self, **kwargs):
         obs, infos = self.env.reset(**kwargs)
         self._obs = obs
+        self._ended = np.zeros(len(obs), dtype=bool)
         return obs, infos
 
     def step(self, actions):
@@ -168,10 +187,22 @@ class ConeShieldVector(gym.vector.VectorWrapper):
         obs, rewards, terminations, truncations, infos = self.env.step(safe)
         self._obs = obs
         last = np.atleast_2d(self.filter.last)
+        live = ~self._ended
+        self._ended = np.asarray(terminations, bool) | np.asarray(truncations, bool)
         infos = dict(infos)
-        infos["shield_active"] = last[:, _s.F_ACTIVE].astype(int)
-        infos["shield_feasible"] = last[:, _s.F_FEASIBLE] > 0.5
+        infos["shield_active"] = np.where(live, last[:, _s.F_ACTIVE], 0).astype(int)
+        infos["_shield_active"] = live
+        infos["shield_feasible"] = np.where(live, last[:, _s.F_FEASIBLE] > 0.5, True)
+        infos["_shield_feasible"] = live.copy()
         return obs, rewards, terminations, truncations, infos
+
+
+def _warn_control_dt(dt, margin_deg):
+    # the defaults hold the cones at control steps of 0.05 T (the environment's default)
+    if dt is not None and dt > 0.05 + 1e-12 and margin_deg < 10.0 * dt:
+        warnings.warn(f"ConeShield: control_dt={dt:g} is longer than the 0.05 the filter's defaults were tuned "
+                      f"for; the sensor can slip past margin_deg={margin_deg:g} between control instants "
+                      f"(about 0.5° of margin per 0.05 of control step held the cones in tests)", stacklevel=3)
 
 
 def _obs_max_cones(shape) -> int:

@@ -83,6 +83,7 @@ class SlewVectorEnv(VectorEnv):
         self.max_cones = check_max_cones(max_cones)
         self.task_distribution = resolve_distribution(task_distribution, self.max_cones)
         self._dist = self.task_distribution.to_array()
+        self.control_dt = float(control_dt)
         self._cfg = make_config(control_dt, substeps, success_bonus, violation_penalty,
                                 terminate_on_violation, shaping, att_tol_deg, rate_tol,
                                 max_episode_steps)

@@ -112,7 +112,6 @@ def test_pd_law_enters_the_cone_without_the_shield_and_not_with_it():
 
 def test_pd_law_with_the_shield_on_drawn_cone_problems():
     """30 drawn pointing-cones tasks: the PD law alone violates most; with the filter none."""
-    bare = ConeShield(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False))
     counts = {"bare": 0, "shield": 0}
     margins = []
     for seed in range(30):
@@ -128,7 +127,6 @@ def test_pd_law_with_the_shield_on_drawn_cone_problems():
             counts[name] += info["violation"]
             if name == "shield":
                 margins.append(worst)
-    del bare
     assert counts["bare"] >= 15
     assert counts["shield"] == 0
     assert min(margins) > 0.0
@@ -152,6 +150,54 @@ def test_p_norm_bound_filtered_action_stays_in_the_inscribed_box():
     assert seen > 0
 
 
+def test_p_norm_bound_the_conditions_are_checked_on_the_action_the_environment_flies():
+    """An action outside the p-ball is flown scaled onto it: the filter treats it so."""
+    f = ConeShieldFilter()
+    env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
+    rng = np.random.default_rng(5)
+    n_active = 0
+    for seed in range(40):
+        obs, _ = env.reset(options={"problem": _cone_problem(norm=2)}, seed=seed)
+        for _ in range(int(rng.integers(5, 40))):
+            obs, *_ = env.step(_pd(obs))
+        a = rng.choice([-1.0, 1.0], 3) * rng.uniform(0.7, 1.0, 3)       # outside the unit 2-ball
+        flown = a / np.linalg.norm(a)
+        np.testing.assert_allclose(f(obs, a), f(obs, flown), atol=1e-12)
+        n_active += f.last[S.F_ACTIVE] > 0
+    assert n_active > 0
+
+
+def test_infeasible_condition_pushes_away_as_hard_as_the_box_allows():
+    f = ConeShieldFilter()
+    env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
+    env.reset(options={"problem": _cone_problem()})
+    # racing straight at the cone, 1° from it: no torque in the box can stop in time
+    x = env.state
+    obs = np.zeros(K.obs_length(4))
+    K.write_obs(env.task_array, x, obs)
+    c = obs[K.OB_CONES:K.OB_CONES + 3]
+    b = obs[K.OB_SENSOR:K.OB_SENSOR + 3]
+    x[4:7] = 3.0 * np.cross(b, c) / np.linalg.norm(np.cross(b, c)) / env.problem.time_unit
+    K.write_obs(env.task_array, x, obs)
+    v = f(obs, np.zeros(3))
+    assert f.last[S.F_FEASIBLE] == 0 and f.last[S.F_ACTIVE] == 1
+    G = np.array(S.cone_barrier_terms(obs, 0, 0.0)[2:5])
+    np.testing.assert_allclose(v, np.sign(G), atol=1e-5)      # the largest G·v the box gives
+
+
+def test_zero_cone_slots_and_a_longer_control_step():
+    f = ConeShieldFilter(max_cones=0)
+    env = SlewEnv(task_distribution="full-attitude", max_cones=0)
+    obs, _ = env.reset(seed=0)
+    assert np.array_equal(f(obs, np.array([0.3, -1.0, 1.0])), [0.3, -1.0, 1.0])
+    with pytest.warns(UserWarning, match="control_dt"):
+        ConeShield(SlewEnv(task_distribution="pointing-cones", control_dt=0.1))
+    with pytest.raises(ValueError, match="sweeps"):
+        ConeShieldFilter(sweeps=float("inf"))
+    with pytest.raises(ValueError, match="max_cones"):
+        ConeShieldFilter(max_cones=float("nan"))
+
+
 def test_batch_equals_rows_and_nan_action_is_zero():
     f = ConeShieldFilter()
     env = SlewEnv(task_distribution="pointing-cones")
@@ -167,7 +213,13 @@ def test_batch_equals_rows_and_nan_action_is_zero():
     rows = np.array([f(o, a) for o, a in zip(O, A)])
     assert np.array_equal(batch, rows)
     v = f(obs_rows[0], np.array([np.nan, 0.5, np.nan]))
-    assert np.isfinite(v).all()
+    np.testing.assert_array_equal(v, f(obs_rows[0], np.array([0.0, 0.5, 0.0])))   # NaN flies as zero torque
+    # float32 observations (as the environment gives them) and float64 give the same action
+    np.testing.assert_array_equal(f(O.astype(np.float32), A), f(O.astype(np.float64), A))
+    with pytest.raises(ValueError, match="obs: not finite"):
+        bad = obs_rows[0].copy()
+        bad[K.OB_W] = np.nan
+        f(bad, np.zeros(3))
 
 
 def test_bad_arguments_name_the_field():
@@ -238,6 +290,18 @@ def test_vector_wrapper_flies_each_copy_as_the_single_wrapper():
         if term.any():
             break
     assert active > 0
+    # through autoreset: the step that resets an ended copy has no filter entry for it
+    vec = ConeShieldVector(SlewVectorEnv(num_envs=n, task_distribution="pointing-cones", max_episode_steps=20))
+    obs, _ = vec.reset(seed=3)
+    ended = np.zeros(n, bool)
+    seen_reset = 0
+    for _ in range(60):
+        obs, _, term, trunc, infos = vec.step(np.array([_pd(o) for o in obs]))
+        np.testing.assert_array_equal(infos["_shield_active"], ~ended)
+        assert np.all(infos["shield_active"][ended] == 0)
+        seen_reset += int(ended.sum())
+        ended = term | trunc
+    assert seen_reset > 0
 
 
 def test_training_config_wraps_the_environments_and_evaluation_follows_the_run():

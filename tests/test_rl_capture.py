@@ -44,6 +44,18 @@ def test_rate_loop_removes_the_damping_fraction_of_a_roll_in_one_step():
     assert w1 == pytest.approx(0.2 * w0, rel=1e-3)
 
 
+def _near_target(problem, off_deg):
+    """The problem as a dict, started at rest ``off_deg`` short of the target along the shortest arc."""
+    p = problem.to_dict()
+    tgt = np.asarray(problem.target_direction)
+    sensor = np.asarray(problem.sensor_axis)
+    axis = np.cross(sensor, tgt)
+    axis /= np.linalg.norm(axis)
+    ang = math.acos(np.clip(sensor @ tgt, -1, 1)) - math.radians(off_deg)
+    p["q0"] = [math.cos(ang / 2), *(math.sin(ang / 2) * axis)]
+    return p
+
+
 class _Chatter:
     """Full torque, alternating sign: reaches nothing, never rests."""
 
@@ -68,13 +80,7 @@ def test_policy_actions_pass_outside_and_the_pd_law_flies_inside():
         np.testing.assert_array_equal(o, ob)
         assert not info["captured"]
     # start 0.5° off the target, turning: the PD law takes over whatever the policy says, and settles
-    p = env.unwrapped.problem.to_dict()
-    tgt = np.asarray(env.unwrapped.problem.target_direction)
-    sensor = np.asarray(env.unwrapped.problem.sensor_axis)
-    axis = np.cross(sensor, tgt)
-    axis /= np.linalg.norm(axis)
-    ang = math.acos(np.clip(sensor @ tgt, -1, 1)) - math.radians(0.5)
-    p["q0"] = [math.cos(ang / 2), *(math.sin(ang / 2) * axis)]
+    p = _near_target(env.unwrapped.problem, 0.5)
     p["omega0"] = [0.02, -0.01, 0.015]
     chatter = _Chatter()
     env.reset(options={"problem": p})
@@ -90,6 +96,23 @@ def test_policy_actions_pass_outside_and_the_pd_law_flies_inside():
     for _ in range(200):
         _, _, term, _, info = bare.step(chatter())
         assert not info["is_success"]
+
+
+def test_capture_damps_the_rate_error_not_the_rate():
+    """A target that spins: on target at the target's rate, the capture law leaves it so."""
+    env = CaptureHandover(SlewEnv(task_distribution="pointing-cones"))
+    env.reset(seed=2)
+    p = _near_target(env.unwrapped.problem, 0.5)
+    spin = list(0.05 / env.unwrapped.problem.time_unit * np.asarray(env.unwrapped.problem.sensor_axis))
+    p["omega0"] = spin
+    p["omegaf"] = spin
+    env.reset(options={"problem": p})
+    for steps in range(1, 20):
+        _, _, term, _, info = env.step(np.ones(3))
+        assert info["captured"]
+        if term:
+            break
+    assert info["is_success"] and steps <= 3
 
 
 def test_configuration_and_evaluation_flags():

@@ -171,3 +171,24 @@ def test_sac_bc_pretrain_prefills_replay_and_warms_up(solutions, tmp_path):
     m = SAC.load(str(tmp_path / "run" / "model.zip"), device="cpu")
     assert m.learning_starts == 0 and m.num_timesteps >= 300
     assert all(p.requires_grad for p in m.actor.parameters())
+
+
+def test_best_known_keeps_the_fastest_verified_answer(tmp_path):
+    import json
+
+    from training.rl.best_known import merge
+
+    head = {"_meta": {"family": "pointing-cones", "seed": 100}}
+    a = [head, {"index": 0, "success": True, "tf": 2.0}, {"index": 1, "success": True, "tf": 3.0}]
+    b = [head, {"index": 0, "success": True, "tf": 1.5}, {"index": 1, "success": False, "tf": 1.0},
+         {"index": 2, "success": True, "tf": 4.0}]
+    for name, rows in (("a", a), ("b", b)):
+        (tmp_path / f"{name}.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n{\"cut")
+    res = merge(tmp_path / "out.jsonl", [tmp_path / "a.jsonl", tmp_path / "b.jsonl"])
+    rows = [json.loads(x) for x in (tmp_path / "out.jsonl").read_text().splitlines()]
+    assert rows[0] == head and res["problems"] == 3
+    assert [(r["index"], r["tf"]) for r in rows[1:]] == [(0, 1.5), (1, 3.0), (2, 4.0)]
+    other = tmp_path / "c.jsonl"
+    other.write_text(json.dumps({"_meta": {"family": "pointing-cones", "seed": 7}}) + "\n")
+    with pytest.raises(ValueError, match="seed"):
+        merge(tmp_path / "o2.jsonl", [tmp_path / "a.jsonl", other])

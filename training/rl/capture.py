@@ -4,10 +4,10 @@ Spacecraft slew controllers hand over to a settling (fine-pointing) law near the
 ``CaptureHandover`` does the same for a policy flying ``SlewEnv``. When the error angle of
 the observation is below ``deg``, the action sent on is
 
-    pd(obs)_i = clip(kp · θ e_i − damping · J̃_i ω̃_i / (ũ_max,i · Δt), −1, 1),
+    pd(obs)_i = clip(kp · θ e_i − damping · J̃_i (ω̃_i − ω̃f_i) / (ũ_max,i · Δt), −1, 1),
 
 ``θ·e`` the rotation still to go (angle and axis of the error quaternion, body frame),
-``ω̃ = ω·T`` the body rate, ``J̃``, ``ũ_max`` the observation's inertia and torque bound and
+``ω̃ = ω·T`` the body rate and ``ω̃f`` the target rate, ``J̃``, ``ũ_max`` the observation's inertia and torque bound and
 ``Δt`` the control step: the rate term removes the fraction ``damping`` of the rate in one
 step (a deadbeat rate loop, scaled per axis by the body's inertia). Elsewhere the policy's
 own action goes through.
@@ -68,7 +68,7 @@ def pd_action(obs, kp: float, damping: float, dt: float) -> np.ndarray:
     single = o.ndim == 1
     o = o.reshape(1, -1) if single else o
     dq = o[:, _k.OB_DQ:_k.OB_DQ + 4]
-    w = o[:, _k.OB_W:_k.OB_W + 3]
+    w = o[:, _k.OB_W:_k.OB_W + 3] - o[:, _k.OB_WF:_k.OB_WF + 3]     # rate error: the target may spin
     J = o[:, _k.OB_J:_k.OB_J + 3]
     umax = np.maximum(o[:, _k.OB_UMAX:_k.OB_UMAX + 3], 1e-12)
     vn = np.linalg.norm(dq[:, 1:], axis=1)

@@ -230,7 +230,7 @@ def build_pairs(records: list, max_cones: int = 4, control_dt: float = 0.05, n_s
 
 # --------------------------------------------------------------------------- DAgger
 def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 400, min_margin_deg: float = 0.5,
-                   terminal_deg: Optional[float] = None):
+                   terminal_deg: Optional[float] = None, handover_deg: float = 0.0):
     """Fly ``problem`` with the deterministic policy; return up to ``n_pick`` visited states
     ``(q, ω)`` (at random control instants before the episode ended, with every cone at least
     ``min_margin_deg`` away), and the rollout's outcome.
@@ -238,14 +238,15 @@ def visited_states(model, vn, env, problem, n_pick: int, rng, max_steps: int = 4
     By default the states are on the way (more than 0.5° from the target). With
     ``terminal_deg``, only states within that angle of the target are picked, at random,
     and only from episodes that did not succeed: where a policy dithers at the target
-    without coming to rest."""
+    without coming to rest. States within ``handover_deg`` (a run's capture law, which
+    flies there instead of the network) are never picked."""
     obs, info = env.reset(options={"problem": problem})
     states = []
     term = False
     for _ in range(max_steps):
         x = env.unwrapped.state
         err = info["attitude_error"]
-        near = terminal_deg is not None and 1e-4 < err <= math.radians(terminal_deg)
+        near = terminal_deg is not None and max(1e-4, math.radians(handover_deg)) < err <= math.radians(terminal_deg)
         far = terminal_deg is None and err > math.radians(0.5)
         if info["min_cone_margin"] >= math.radians(min_margin_deg) and (near or far):
             states.append(x)
@@ -283,7 +284,12 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
     from .train import capture_kwargs, shield_kwargs
 
     model, vn, cfg = load_policy(policy)
-    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg), capture_kwargs(cfg))   # as it trained
+    capture = capture_kwargs(cfg)
+    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg), capture)   # fly the policy as it trained
+    handover = capture["deg"] if capture else 0.0
+    if terminal_deg is not None and terminal_deg <= handover:
+        raise ValueError(f"--terminal-deg: {terminal_deg:g}° is inside the policy's capture angle ({handover:g}°), "
+                         "where the capture law flies, not the network; use a larger angle")
     spec = GenerationSpec(family=family, seed=int(seed), n=int(n_problems))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -297,7 +303,8 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
                 continue
             prob = problem_for(spec, i)
             rng = np.random.default_rng([int(seed), i, 7])
-            states, outcome = visited_states(model, vn, env, prob, n_pick, rng, terminal_deg=terminal_deg)
+            states, outcome = visited_states(model, vn, env, prob, n_pick, rng, terminal_deg=terminal_deg,
+                                             handover_deg=handover)
             outcomes[outcome] = outcomes.get(outcome, 0) + 1
             for j, x in enumerate(states):
                 d = prob.to_dict()

@@ -590,7 +590,7 @@ def plot_overlay(problems, records, histories, episodes, path, env_kwargs=None):
 def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("policy", metavar="POLICY",
                    help="slew train-rl run directory, model.zip or checkpoint rl_model_<N>_steps.zip; "
-                        "'shipped' for the policy shipped with the package")
+                        "'shipped' (full-attitude) or 'shipped:pointing-cones' for the policies shipped with the package")
     p.add_argument("--family", choices=FAMILIES, help="task family (default: the one the policy was trained on)")
     p.add_argument("--n", type=int, default=200, help="held-out problems (default 200)")
     p.add_argument("--seed", type=int, default=DEFAULT_EVAL_SEED,
