@@ -155,3 +155,28 @@ def test_subproc_vec_env(tmp_path):
     info = train("ppo", "full-attitude", config=_write_cfg(tmp_path, "ppo", cfg), out=tmp_path / "run",
                  vec_env="subproc")
     assert info["vec_env"] == "subproc" and info["num_timesteps"] >= 512
+
+
+def test_ppo_on_cones_with_filter_capture_and_features_trains_reloads_and_evaluates(tmp_path):
+    """The pointing-cones recipe's parts (ConeShield, CaptureHandover, HighGainFeatures) survive
+    training, saving and reloading, and evaluate-rl flies the network through them."""
+    from training.rl.evaluate import evaluate, load_policy
+    from training.rl.features import HighGainFeatures
+
+    entry = dict(PPO_CFG, n_timesteps=1024, eval={"eval_freq": 0}, checkpoint={"save_freq": 0})
+    entry["policy_kwargs"] = dict(PPO_CFG["policy_kwargs"], features_extractor_class="high_gain")
+    entry["shield"] = {"margin_deg": 0.5}
+    entry["capture"] = {"deg": 1.0}
+    path = tmp_path / "ppo.yaml"
+    path.write_text(yaml.safe_dump({"pointing-cones": entry}))
+    train("ppo", "pointing-cones", config=path, seed=1, out=tmp_path / "run")
+    model, vn, cfg = load_policy(tmp_path / "run")
+    assert isinstance(model.policy.features_extractor, HighGainFeatures)
+    res = evaluate(tmp_path / "run", n=2, out=tmp_path / "ev", plot_k=0, solutions=tmp_path / "sol.jsonl",
+                   progress=False, max_steps=40)
+    assert res["shield"]["margin_deg"] == 0.5 and res["capture"]["deg"] == 1.0
+    assert res["summary"]["n"] == 2 and res["summary"]["solver_ok"] == 2
+    off = evaluate(tmp_path / "run", n=2, out=tmp_path / "ev-off", plot_k=0, solutions=tmp_path / "sol.jsonl",
+                   progress=False, max_steps=40, shield="off", capture="off")
+    assert off["shield"] is None and off["capture"] is None
+    assert all(e["shield_steps"] == 0 and e["captured_steps"] == 0 for e in off["episodes"])
