@@ -61,16 +61,14 @@ class ConeShieldFilter:
                 raise ValueError(f"{name}: must be a whole number in [{lo}, {hi}], got {x!r}")
             return int(x)
 
-        whole("max_cones", max_cones, 0, _s.MAX_CONES)
+        self.max_cones = whole("max_cones", max_cones, 0, _s.MAX_CONES)
         margin = float(margin_deg)
         if not (math.isfinite(margin) and 0.0 <= margin < 90.0):
             raise ValueError(f"margin_deg: must be a finite number in [0, 90), got {margin_deg!r}")
-        whole("sweeps", sweeps, 1, 10_000)
-        self.max_cones = int(max_cones)
+        self.sweeps = whole("sweeps", sweeps, 1, 10_000)
         self.margin_deg = margin
         self.barrier_rate = positive("barrier_rate", barrier_rate)
         self.brake = positive("brake", brake, 1.0)
-        self.sweeps = int(sweeps)
         self._params = _s.make_params(math.radians(margin), self.barrier_rate, self.brake, self.sweeps)
         self._len = _k.obs_length(self.max_cones)
         self.last = np.zeros(_s.OUT_LENGTH)

@@ -72,7 +72,7 @@ def pd_action(obs, kp: float, damping: float, dt: float) -> np.ndarray:
     J = o[:, _k.OB_J:_k.OB_J + 3]
     umax = np.maximum(o[:, _k.OB_UMAX:_k.OB_UMAX + 3], 1e-12)
     vn = np.linalg.norm(dq[:, 1:], axis=1)
-    theta = 2.0 * np.arctan2(vn, dq[:, 0])
+    theta = error_angle(o)
     axis = dq[:, 1:] / np.maximum(vn, 1e-12)[:, None]
     a = np.clip(kp * theta[:, None] * axis - damping * J * w / (umax * dt), -1.0, 1.0)
     return a[0] if single else a

@@ -334,8 +334,8 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     summary = summarise(episodes)
     results = {"policy": str(policy), "algo": cfg.get("algo"), "trained_family": cfg.get("family"),
                "family": family, "n": n, "seed": seed, "max_steps": max_steps, "env_kwargs": env_kwargs,
-               "shield": shield_kw, "trained_with_shield": _shield_of(cfg), "capture": capture_kw,
-               "trained_with_capture": _capture_of(cfg),
+               "shield": shield_kw, "trained_with_shield": resolve_shield("policy", cfg), "capture": capture_kw,
+               "trained_with_capture": resolve_capture("policy", cfg),
                "solutions": str(solutions) if solutions else None, "summary": summary,
                "timing": {"solve_s": t_solve, "rollout_s": t_roll, "total_s": time.perf_counter() - t0},
                "command": command, "train_info": _train_info(pdir), "episodes": episodes}
@@ -348,49 +348,33 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     return results
 
 
-def _shield_of(cfg: dict):
-    from .train import shield_kwargs
-    return shield_kwargs(cfg)
-
-
-def _capture_of(cfg: dict):
-    from .train import capture_kwargs
-    return capture_kwargs(cfg)
-
-
-def resolve_capture(capture, cfg: dict) -> Optional[dict]:
-    """``CaptureHandover`` arguments for a rollout (None: none); as ``resolve_shield``."""
-    trained = _capture_of(cfg)
-    if isinstance(capture, dict):
-        from .train import capture_kwargs
-        return capture_kwargs({"capture": capture})
-    if capture == "policy":
+def _run_part(choice, cfg: dict, key: str) -> Optional[dict]:
+    """Arguments of the run's ``key`` part (``shield``: ``ConeShield``; ``capture``:
+    ``CaptureHandover``) for a rollout; None: without it. ``choice``: ``"policy"`` as the run
+    trained, ``"on"`` the part's defaults where the run had none, ``"off"`` none, or a dict of
+    arguments (validated as the config's)."""
+    from .train import capture_kwargs, shield_kwargs
+    parse = {"shield": shield_kwargs, "capture": capture_kwargs}[key]
+    if isinstance(choice, dict):
+        return parse({key: choice})
+    trained = parse(cfg)
+    if choice == "policy":
         return trained
-    if capture == "on":
-        return trained if trained is not None else capture_kwargs_default()
-    if capture == "off":
+    if choice == "on":
+        return trained if trained is not None else parse({key: True})
+    if choice == "off":
         return None
-    raise ValueError(f"--capture: expected policy, on or off, got {capture!r}")
-
-
-def capture_kwargs_default() -> dict:
-    from .capture import check
-    return check({})
+    raise ValueError(f"--{key}: expected policy, on or off, got {choice!r}")
 
 
 def resolve_shield(shield, cfg: dict) -> Optional[dict]:
     """``ConeShield`` arguments for a rollout (None: no filter); see ``evaluate``'s ``shield``."""
-    trained = _shield_of(cfg)
-    if isinstance(shield, dict):
-        from .train import shield_kwargs
-        return shield_kwargs({"shield": shield})
-    if shield == "policy":
-        return trained
-    if shield == "on":
-        return trained if trained is not None else {}
-    if shield == "off":
-        return None
-    raise ValueError(f"--shield: expected policy, on or off, got {shield!r}")
+    return _run_part(shield, cfg, "shield")
+
+
+def resolve_capture(capture, cfg: dict) -> Optional[dict]:
+    """``CaptureHandover`` arguments for a rollout (None: none); as ``resolve_shield``."""
+    return _run_part(capture, cfg, "capture")
 
 
 def _train_info(pdir: Path):
