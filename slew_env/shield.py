@@ -38,14 +38,18 @@ class ConeShieldFilter:
     ``margin_deg``      0.5       every cone enlarged by this (deg), at most half the
                                   target's clearance from that cone
     ``barrier_rate``    20.0      λ, per time unit T: how fast the margin may be used
-    ``brake``           0.3       braking deceleration assumed, as a fraction of the
+    ``brake``           0.6       braking deceleration assumed, as a fraction of the
                                   largest the torque box gives away from the cone
     ``sweeps``          20        dual sweeps over the cones (several near at once)
+    ``gap_deg``         1.0       a gap between two cones narrower than this (deg),
+                                  and the sharp notch where two cones cross, are
+                                  filled by bridge cones (``core.shield.pair_bridges``):
+                                  no action holds their tips; 0: never
     ==================  ========  ===================================================
     """
 
     def __init__(self, max_cones: int = 4, margin_deg: float = 0.5, barrier_rate: float = 20.0,
-                 brake: float = 0.3, sweeps: int = 20):
+                 brake: float = 0.6, sweeps: int = 20, gap_deg: float = 1.0):
         def positive(name, x, upper=math.inf):
             x = float(x)
             if not (math.isfinite(x) and 0.0 < x <= upper):
@@ -69,13 +73,18 @@ class ConeShieldFilter:
         self.margin_deg = margin
         self.barrier_rate = positive("barrier_rate", barrier_rate)
         self.brake = positive("brake", brake, 1.0)
-        self._params = _s.make_params(math.radians(margin), self.barrier_rate, self.brake, self.sweeps)
+        gap = float(gap_deg)
+        if not (math.isfinite(gap) and 0.0 <= gap < 90.0):
+            raise ValueError(f"gap_deg: must be a finite number in [0, 90), got {gap_deg!r}")
+        self.gap_deg = gap
+        self._params = _s.make_params(math.radians(margin), self.barrier_rate, self.brake, self.sweeps,
+                                      math.radians(gap))
         self._len = _k.obs_length(self.max_cones)
         self.last = np.zeros(_s.OUT_LENGTH)
 
     def config(self) -> dict:
         return {"margin_deg": self.margin_deg, "barrier_rate": self.barrier_rate, "brake": self.brake,
-                "sweeps": self.sweeps}
+                "sweeps": self.sweeps, "gap_deg": self.gap_deg}
 
     def __call__(self, obs, action) -> np.ndarray:
         """Filtered action(s): ``obs`` (L,) or (N, L) raw observations, ``action`` (3,) or (N, 3)."""
@@ -142,10 +151,10 @@ class ConeShield(ObservingActionWrapper):
 
     name = "ConeShield"
 
-    def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
-                 sweeps: int = 20):
+    def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.6,
+                 sweeps: int = 20, gap_deg: float = 1.0):
         super().__init__(env)
-        self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps)
+        self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps, gap_deg)
         _warn_control_dt(getattr(env.unwrapped, "control_dt", None), margin_deg)
 
     def act(self, obs, action):
@@ -161,13 +170,13 @@ class ConeShieldVector(gym.vector.VectorWrapper):
     ``_shield_feasible`` masks: a copy that ended on the previous step is being reset
     (next-step autoreset) and its action is ignored, so it has no entry."""
 
-    def __init__(self, env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.3,
-                 sweeps: int = 20):
+    def __init__(self, env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.6,
+                 sweeps: int = 20, gap_deg: float = 1.0):
         super().__init__(env)
         max_cones = getattr(env, "max_cones", None)
         if max_cones is None:
             max_cones = _obs_max_cones(env.single_observation_space.shape)
-        self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps)
+        self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps, gap_deg)
         _warn_control_dt(getattr(env, "control_dt", None), margin_deg)
         self._obs = None
         self._ended = None

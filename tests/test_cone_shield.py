@@ -231,6 +231,8 @@ def test_bad_arguments_name_the_field():
         ConeShieldFilter(brake=1.5)
     with pytest.raises(ValueError, match="sweeps"):
         ConeShieldFilter(sweeps=0)
+    with pytest.raises(ValueError, match="gap_deg"):
+        ConeShieldFilter(gap_deg=-1.0)
     with pytest.raises(ValueError, match="max_cones"):
         ConeShieldFilter(max_cones=99)
     f = ConeShieldFilter(max_cones=4)
@@ -309,7 +311,7 @@ def test_training_config_wraps_the_environments_and_evaluation_follows_the_run()
     from training.rl.train import load_config, make_vec, shield_kwargs
 
     cfg = load_config("ppo", "pointing-cones")
-    assert shield_kwargs(cfg) == {"margin_deg": 0.5, "barrier_rate": 20.0, "brake": 0.3}
+    assert shield_kwargs(cfg) == {"margin_deg": 0.5, "barrier_rate": 20.0, "brake": 0.6, "gap_deg": 1.0}
     venv = make_vec(cfg, 2, seed=0)
 
     def chain(e):
@@ -385,3 +387,111 @@ def test_rollout_history_records_the_torque_flown_after_the_filter():
         obs, _, term, _, info = bare.step(uk)       # recorded as u / u_max
     assert info["is_success"] and k + 1 == r["steps"]
     assert len({tuple(np.round(x, 12)) for x in u}) > 3
+
+
+def _gap_problem(gap_deg, target_deg=120.0):
+    """Two 20° cones either side of the short path (the equator), ``gap_deg`` apart at 60°."""
+    d = math.radians
+    e = 20.0 + 0.5 * gap_deg                     # elevation of each axis
+    return SlewProblem(inertia=(0.5, 0.8, 1.0), torque_max=1.0, q0=[1, 0, 0, 0], sensor_axis=[1, 0, 0],
+                       sensor_target=[math.cos(d(target_deg)), math.sin(d(target_deg)), 0.0],
+                       cones=[{"axis": [math.cos(d(60)) * math.cos(d(e)), math.sin(d(60)) * math.cos(d(e)), s * math.sin(d(e))],
+                               "half_angle_deg": 20.0} for s in (1.0, -1.0)])
+
+
+def _bridges(obs, gap, delta=0.0):
+    B = np.zeros((2, 4))
+    n = S.pair_bridges(obs, 0, 1, gap, delta, B)
+    return B[:n]
+
+
+def _width_at(p, obs):
+    """Angular width of the free corner at ``p``: its clearance from both cones of ``obs``."""
+    c = [obs[K.OB_CONES + K.OB_CONE_STRIDE * k:K.OB_CONES + K.OB_CONE_STRIDE * k + 4] for k in (0, 1)]
+    return sum(math.acos(np.dot(p, ck[:3])) - ck[3] for ck in c)
+
+
+def test_a_narrow_gap_between_two_cones_is_closed_by_a_bridge():
+    """The bridge sits on the gap point; at its rim the gap is 2·(threshold + margin) wide."""
+    d = math.radians
+    env = SlewEnv(task_distribution="pointing-cones")
+    env.reset(options={"problem": _gap_problem(0.2)})
+    obs = _obs64(env)
+    gap, delta = d(1.0), d(0.5)
+    (b,) = _bridges(obs, gap, delta)
+    m, r = b[:3], b[3]
+    assert np.allclose(m, [math.cos(d(60)), math.sin(d(60)), 0.0], atol=1e-12)   # the gap point
+    kappa = 1.0 / math.tan(d(20.0))
+    assert r == pytest.approx(math.sqrt((2 * (gap + delta) - d(0.2)) / kappa), rel=1e-12)
+    # the width at the rim, along the gap's own line (perpendicular to the axes' plane)
+    along = np.cross(m, [0.0, 0.0, 1.0])
+    along /= np.linalg.norm(along)
+    assert _width_at(math.cos(r) * m + math.sin(r) * along, obs) == pytest.approx(2 * (gap + delta), rel=0.05)
+    # a wide gap, a threshold of 0, a target in the gap, or a sensor already in it: no bridge
+    env.reset(options={"problem": _gap_problem(3.0)})
+    assert len(_bridges(_obs64(env), gap)) == 0
+    env.reset(options={"problem": _gap_problem(0.2)})
+    assert len(_bridges(_obs64(env), 0.0)) == 0
+    env.reset(options={"problem": _gap_problem(0.2, target_deg=61.0)})
+    assert len(_bridges(_obs64(env), gap)) == 0
+    obs = _obs64(env)
+    obs[K.OB_SENSOR:K.OB_SENSOR + 3] = m                               # the sensor on the gap point
+    assert len(_bridges(obs, gap)) == 0
+
+
+def test_the_sharp_notches_of_two_crossing_cones_are_closed_by_bridges():
+    """Two cones overlapping by 4°: a bridge on each point where their rims cross, of the radius
+    where the free corner is 2·threshold wide; overlapping by 30° (wide corners): none."""
+    d = math.radians
+    env = SlewEnv(task_distribution="pointing-cones")
+    env.reset(options={"problem": _gap_problem(-4.0)})
+    obs = _obs64(env)
+    gap = d(1.0)
+    bridges = _bridges(obs, gap)
+    assert len(bridges) == 2
+    c = [obs[K.OB_CONES + K.OB_CONE_STRIDE * k:K.OB_CONES + K.OB_CONE_STRIDE * k + 3] for k in (0, 1)]
+    for b in bridges:
+        x, r = b[:3], b[3]
+        assert np.linalg.norm(x) == pytest.approx(1.0, abs=1e-12)
+        for ck in c:                                                    # on both rims
+            assert math.acos(np.dot(x, ck)) == pytest.approx(d(20.0), abs=1e-9)
+        assert abs(x[2]) < 1e-9                                         # symmetric cones: on the equator
+        # along the corner's bisector (the equator, away from the cones) the width at r is 2·gap
+        mid = np.array([math.cos(d(60)), math.sin(d(60)), 0.0])
+        away = np.cross(np.cross(x, -mid), x)                           # tangent at x, pointing from mid
+        away /= np.linalg.norm(away)
+        assert _width_at(math.cos(r) * x + math.sin(r) * away, obs) == pytest.approx(2 * gap, rel=0.1)
+    env.reset(options={"problem": _gap_problem(-30.0)})
+    assert len(_bridges(_obs64(env), gap)) == 0
+
+
+@pytest.mark.parametrize("gap_deg, bare_below, bridged_above", [(0.2, 0.0, 0.2), (0.6, 0.0, 0.2),
+                                                                  (-1.5, -0.5, 1.0), (-4.0, -0.5, 1.0)])
+def test_pd_law_is_not_squeezed_into_a_narrow_gap_or_a_sharp_notch(gap_deg, bare_below, bridged_above):
+    """Driven at a gap narrower than the two margins, or at the notch of two cones overlapping by a
+    few degrees, the filter at brake 0.6 without the bridges cannot hold both cones (the PD law
+    enters one, in a notch by over 0.5°); with them it stays clear of both."""
+    worst = {}
+    for bridge in (0.0, 1.0):
+        env = ConeShield(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False),
+                         brake=0.6, gap_deg=bridge)
+        obs, _ = env.reset(options={"problem": _gap_problem(gap_deg)})
+        worst[bridge] = math.inf
+        for _ in range(300):
+            obs, _, term, _, info = env.step(_pd(obs))
+            worst[bridge] = min(worst[bridge], info["min_cone_margin"])
+            if term:
+                break
+    assert worst[0.0] < math.radians(bare_below)
+    assert worst[1.0] > math.radians(bridged_above)
+
+
+def test_a_passable_gap_stays_open():
+    """A gap wider than the threshold is flown through (the PD law reaches the target)."""
+    env = ConeShield(SlewEnv(task_distribution="pointing-cones"), brake=0.6)
+    obs, _ = env.reset(options={"problem": _gap_problem(1.2)})
+    for _ in range(300):
+        obs, _, term, _, info = env.step(_pd(obs))
+        if term:
+            break
+    assert info["is_success"] and not info["violation"]

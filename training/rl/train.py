@@ -158,7 +158,7 @@ def shield_kwargs(cfg: dict) -> Optional[dict]:
     """The ``ConeShield`` arguments of a config's ``shield`` entry; None without a shield.
 
     ``shield: null`` or ``false``: none; ``true`` or ``{}``: the filter's defaults; a mapping:
-    ``ConeShield`` arguments (``margin_deg``, ``barrier_rate``, ``brake``, ``sweeps``).
+    ``ConeShield`` arguments (``margin_deg``, ``barrier_rate``, ``brake``, ``sweeps``, ``gap_deg``).
     """
     sh = cfg.get("shield")
     if sh is None or sh is False:
@@ -171,7 +171,7 @@ def shield_kwargs(cfg: dict) -> Optional[dict]:
     try:
         ConeShieldFilter(**sh)
     except TypeError as exc:
-        raise ValueError(f"shield: {exc}; known: margin_deg, barrier_rate, brake, sweeps") from None
+        raise ValueError(f"shield: {exc}; known: margin_deg, barrier_rate, brake, sweeps, gap_deg") from None
     except ValueError as exc:
         raise ValueError(f"shield.{exc}") from None
     return dict(sh)
