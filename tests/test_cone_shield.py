@@ -1,5 +1,6 @@
 """ConeShield: the keep-out-cone safety filter on the environment's observation."""
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -192,6 +193,11 @@ def test_zero_cone_slots_and_a_longer_control_step():
     assert np.array_equal(f(obs, np.array([0.3, -1.0, 1.0])), [0.3, -1.0, 1.0])
     with pytest.warns(UserWarning, match="control_dt"):
         ConeShield(SlewEnv(task_distribution="pointing-cones", control_dt=0.1))
+    with pytest.warns(UserWarning, match=r"brake <= 0\.3"):       # the margin alone is not enough
+        ConeShield(SlewEnv(task_distribution="pointing-cones", control_dt=0.1), margin_deg=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ConeShield(SlewEnv(task_distribution="pointing-cones", control_dt=0.1), margin_deg=1.0, brake=0.3)
     with pytest.raises(ValueError, match="sweeps"):
         ConeShieldFilter(sweeps=float("inf"))
     with pytest.raises(ValueError, match="max_cones"):
