@@ -51,7 +51,10 @@ class ConeShieldFilter:
     def __init__(self, max_cones: int = 4, margin_deg: float = 0.5, barrier_rate: float = 20.0,
                  brake: float = 0.6, sweeps: int = 20, gap_deg: float = 1.0):
         def positive(name, x, upper=math.inf):
-            x = float(x)
+            try:
+                x = float(x)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name}: must be a finite number in (0, {upper}], got {x!r}") from None
             if not (math.isfinite(x) and 0.0 < x <= upper):
                 raise ValueError(f"{name}: must be a finite number in (0, {upper}], got {x!r}")
             return x
@@ -65,17 +68,22 @@ class ConeShieldFilter:
                 raise ValueError(f"{name}: must be a whole number in [{lo}, {hi}], got {x!r}")
             return int(x)
 
+        def angle(name, x):
+            try:
+                v = float(x)
+            except (TypeError, ValueError):
+                v = math.nan
+            if not (math.isfinite(v) and 0.0 <= v < 90.0):
+                raise ValueError(f"{name}: must be a finite number in [0, 90), got {x!r}")
+            return v
+
         self.max_cones = whole("max_cones", max_cones, 0, _s.MAX_CONES)
-        margin = float(margin_deg)
-        if not (math.isfinite(margin) and 0.0 <= margin < 90.0):
-            raise ValueError(f"margin_deg: must be a finite number in [0, 90), got {margin_deg!r}")
+        margin = angle("margin_deg", margin_deg)
         self.sweeps = whole("sweeps", sweeps, 1, 10_000)
         self.margin_deg = margin
         self.barrier_rate = positive("barrier_rate", barrier_rate)
         self.brake = positive("brake", brake, 1.0)
-        gap = float(gap_deg)
-        if not (math.isfinite(gap) and 0.0 <= gap < 90.0):
-            raise ValueError(f"gap_deg: must be a finite number in [0, 90), got {gap_deg!r}")
+        gap = angle("gap_deg", gap_deg)
         self.gap_deg = gap
         self._params = _s.make_params(math.radians(margin), self.barrier_rate, self.brake, self.sweeps,
                                       math.radians(gap))
@@ -155,7 +163,7 @@ class ConeShield(ObservingActionWrapper):
                  sweeps: int = 20, gap_deg: float = 1.0):
         super().__init__(env)
         self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps, gap_deg)
-        _warn_control_dt(getattr(env.unwrapped, "control_dt", None), margin_deg, brake)
+        _warn_control_dt(getattr(env.unwrapped, "control_dt", None), self.filter.margin_deg, self.filter.brake)
 
     def act(self, obs, action):
         safe = self.filter(obs, action)
@@ -177,7 +185,7 @@ class ConeShieldVector(gym.vector.VectorWrapper):
         if max_cones is None:
             max_cones = _obs_max_cones(env.single_observation_space.shape)
         self.filter = ConeShieldFilter(max_cones, margin_deg, barrier_rate, brake, sweeps, gap_deg)
-        _warn_control_dt(getattr(env, "control_dt", None), margin_deg, brake)
+        _warn_control_dt(getattr(env, "control_dt", None), self.filter.margin_deg, self.filter.brake)
         self._obs = None
         self._ended = None
 
@@ -209,7 +217,7 @@ def _warn_control_dt(dt, margin_deg, brake):
     # longer step needs a wider margin and a gentler braking assumption (PD law, 100 tasks of
     # seed 7: at 0.1 T the defaults entered cones on 19, margin 1° and brake 0.3 on none; at
     # 0.2 T no setting tried held them, 23-29 entries)
-    if dt is not None and dt > 0.05 + 1e-12 and (margin_deg < 10.0 * dt or brake > 0.03 / dt):
+    if dt is not None and dt > 0.05 + 1e-12 and (margin_deg < 10.0 * dt - 1e-9 or brake > 0.03 / dt + 1e-9):
         warnings.warn(f"ConeShield: control_dt={dt:g} is longer than the 0.05 the filter's defaults were tuned "
                       f"for; the sensor can slip into a cone between control instants. Use margin_deg >= "
                       f"{10.0 * dt:g} and brake <= {0.03 / dt:.3g} (at 0.1 these held 100 test flights; beyond 0.1 "

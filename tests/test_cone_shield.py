@@ -239,6 +239,10 @@ def test_bad_arguments_name_the_field():
         ConeShieldFilter(sweeps=0)
     with pytest.raises(ValueError, match="gap_deg"):
         ConeShieldFilter(gap_deg=-1.0)
+    with pytest.raises(ValueError, match="gap_deg"):
+        ConeShieldFilter(gap_deg=None)
+    with pytest.raises(ValueError, match="brake"):
+        ConeShieldFilter(brake="fast")
     with pytest.raises(ValueError, match="max_cones"):
         ConeShieldFilter(max_cones=99)
     f = ConeShieldFilter(max_cones=4)
@@ -440,9 +444,48 @@ def test_a_narrow_gap_between_two_cones_is_closed_by_a_bridge():
     assert len(_bridges(_obs64(env), 0.0)) == 0
     env.reset(options={"problem": _gap_problem(0.2, target_deg=61.0)})
     assert len(_bridges(_obs64(env), gap)) == 0
+    env.reset(options={"problem": _gap_problem(0.2)})
     obs = _obs64(env)
-    obs[K.OB_SENSOR:K.OB_SENSOR + 3] = m                               # the sensor on the gap point
+    obs[K.OB_SENSOR:K.OB_SENSOR + 3] = math.cos(0.5 * r) * m + math.sin(0.5 * r) * along   # inside the bridge
     assert len(_bridges(obs, gap)) == 0
+    # an overlap smaller than the threshold is a gap too: one bridge on the gap point
+    env.reset(options={"problem": _gap_problem(-0.5)})
+    (b,) = _bridges(_obs64(env), gap)
+    assert np.allclose(b[:3], [math.cos(d(60)), math.sin(d(60)), 0.0], atol=1e-12)
+
+
+def _two_cones_obs(c1, a1, c2, a2, target=(0.0, 0.0, 1.0)):
+    """An observation at rest with sensor +x, the given target and two cones (body axes as given)."""
+    obs = np.zeros(K.obs_length(4))
+    obs[K.OB_DQ] = 1.0
+    obs[K.OB_SENSOR:K.OB_SENSOR + 3] = [1.0, 0.0, 0.0]
+    obs[K.OB_TARGET:K.OB_TARGET + 3] = target
+    obs[K.OB_J:K.OB_J + 3] = 1.0
+    obs[K.OB_UMAX:K.OB_UMAX + 3] = 1.0
+    for k, (c, a) in enumerate(((c1, a1), (c2, a2))):
+        o = K.OB_CONES + K.OB_CONE_STRIDE * k
+        obs[o:o + 3] = c
+        obs[o + 3] = a
+        obs[o + 5] = 1.0
+    return obs
+
+
+def test_bridges_in_degenerate_pairs():
+    d = math.radians
+    gap = d(1.0)
+    # a small cone inside a larger one near its rim: no free corner, no bridge
+    inner = [0.0, math.cos(d(19.6)), math.sin(d(19.6))]       # 19.6° + 0.3° < 20°
+    assert len(_bridges(_two_cones_obs([0.0, 1.0, 0.0], d(20.0), inner, d(0.3)), gap)) == 0
+    # a small cone beside a large one: the bridge is at most half the small cone plus the threshold
+    near = [0.0, math.cos(d(30.0 + 10.0 + 0.2)), math.sin(d(30.0 + 10.0 + 0.2))]
+    (b,) = _bridges(_two_cones_obs([0.0, 1.0, 0.0], d(30.0), near, d(10.0)), gap, d(0.5))
+    assert b[3] == pytest.approx(d(5.0) + gap, rel=1e-12)
+    # parallel axes that are not unit length (a crafted observation): no bridge, no crash
+    for c2 in ([-0.99999994, 0.0, 0.0], [0.99999994, 0.0, 0.0]):
+        obs = _two_cones_obs([1.0, 0.0, 0.0], d(89.9), c2, d(89.9))
+        assert len(_bridges(obs, gap)) == 0
+        v = ConeShieldFilter()(obs, np.array([0.2, 0.1, -0.3]))
+        assert np.all(np.isfinite(v))
 
 
 def test_the_sharp_notches_of_two_crossing_cones_are_closed_by_bridges():

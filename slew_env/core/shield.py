@@ -179,8 +179,13 @@ def pair_bridges(obs, j, k, gap, delta, B):
       ``α_j``, ``α_k`` part from their common tangent as ``d²·cot α/2``, so the width at ``d``
       is ``g + κd²``, ``κ = (cot α_j + cot α_k)/2``, and ``r = √((W − g)/κ)``;
     - cones that overlap by more (``g ≤ −gap``): one bridge on each crossing point of their
-      rims, where the free corner's opening angle is ``θ``: ``r = (W/2)/tan(θ/2)``, kept only
-      if at least ``gap`` (a corner wider than about 110° needs none).
+      rims, where the free corner's opening angle is ``θ``: ``r = (W/2)/tan(θ/2)`` (the
+      corner's chord width; the sum of the two clearances there is somewhat less), kept only
+      if at least ``gap`` (none where ``tan(θ/2) > (gap + delta)/gap``: above about 110° with
+      the defaults).
+
+    A bridge is at most half the smaller cone's half-angle plus ``gap`` wide; none joins a cone
+    lying inside the other.
 
     A bridge never holds the target (it shrinks to keep the target ``gap`` outside, and is
     dropped if that leaves it narrower than ``gap``) nor a sensor already inside it.
@@ -193,17 +198,23 @@ def pair_bridges(obs, j, k, gap, delta, B):
     g = D - aj - ak
     if g >= gap or D < 1e-9 or math.pi - D < 1e-9:
         return 0
+    if D + min(aj, ak) <= max(aj, ak):
+        return 0          # one cone inside the other: no free corner between them
     W = 2.0 * (gap + delta)
+    # a bridge no wider than half the smaller cone (and the threshold): it fills a tip, it does
+    # not stand in for a cone
     cap = 0.5 * min(aj, ak) + gap
     cjk = cj0 * ck0 + cj1 * ck1 + cj2 * ck2
     if g > -gap:
         u0 = ck0 - cjk * cj0; u1 = ck1 - cjk * cj1; u2 = ck2 - cjk * cj2
         un = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        if un < 1e-12:
+            return 0      # (axes not of unit length in a crafted observation)
         u0 /= un; u1 /= un; u2 /= un
         phi = aj + 0.5 * g
         cp = math.cos(phi); sp = math.sin(phi)
-        kappa = 0.5 * (1.0 / math.tan(min(max(aj, 1e-6), 1.5)) + 1.0 / math.tan(min(max(ak, 1e-6), 1.5)))
-        r = min(math.sqrt((W - g) / kappa), cap)
+        kappa = 0.5 * (1.0 / math.tan(max(aj, 1e-6)) + 1.0 / math.tan(max(ak, 1e-6)))
+        r = min(math.sqrt((W - g) / kappa), cap) if kappa > 1e-6 else cap
         return _bridge_fits(obs, cp * cj0 + sp * u0, cp * cj1 + sp * u1, cp * cj2 + sp * u2, r, gap, B, 0)
     # the rims cross at x = a·c_j + b·c_k ± t·n, n = c_j × c_k / |c_j × c_k|
     s2 = 1.0 - cjk * cjk
@@ -215,6 +226,8 @@ def pair_bridges(obs, j, k, gap, delta, B):
         return 0          # one cone inside the other: no crossing
     n0 = cj1 * ck2 - cj2 * ck1; n1 = cj2 * ck0 - cj0 * ck2; n2 = cj0 * ck1 - cj1 * ck0
     nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    if nn < 1e-12:
+        return 0
     t = math.sqrt(t2) / nn
     n = 0
     for sign in (1.0, -1.0):
