@@ -83,10 +83,12 @@ class ConeEnsembleWarmStart:
         why = self.table.covers(problem)
         if why:
             return None, why
-        g_net, why = self.network.guess_or_reason(problem)
+        why, cf = self.network._coverage(problem)
         if why:
             return None, why
-        cands = self.table.guess(problem, k=self.n_neighbours).all() + g_net.all()
+        # one canonical form for the table and the network
+        g_net = self.network.guess_from_form(problem, cf)
+        cands = self.table.guess(problem, k=self.n_neighbours, cf=cf).all() + g_net.all()
         for g in cands:
             g.candidates = []
         first = cands[0]

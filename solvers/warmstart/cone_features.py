@@ -32,6 +32,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Optional
 
 import numpy as np
@@ -70,12 +71,12 @@ class ConeCanonicalForm:
     T_ref: float            # nondimensional time of the eigenaxis pointing slew (cones ignored)
     slots: tuple            # slots[k] = index of the problem cone in canonical slot k
 
-    @property
+    @cached_property        # (the form is immutable; read for every candidate mapped back)
     def axial(self) -> np.ndarray:
         """The map of axial body vectors (rates, torques, costates): ``det(A) A``."""
         return round(float(np.linalg.det(self.A))) * self.A
 
-    @property
+    @cached_property
     def order(self) -> list:
         """Canonical axis ``i`` is body axis ``order[i]``."""
         return [int(np.argmax(np.abs(self.A[i]))) for i in range(3)]

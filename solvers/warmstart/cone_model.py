@@ -120,6 +120,11 @@ class ConeWarmStartModel(WarmStartModel):
         why, cf = self._coverage(problem)
         if why:
             return None, why
+        return self.guess_from_form(problem, cf, t0), None
+
+    def guess_from_form(self, problem, cf, t0=None):
+        """The guess for a covered ``problem`` whose canonical form ``cf`` is known."""
+        t0 = time.perf_counter() if t0 is None else t0
         z, T, p, tc, nu, uf_c, sw_c = self.predict_canonical(cf.x, cf.T_ref)
         used = range(len(problem.cones))
         c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, z, T, sw_c, uf_c,
@@ -137,4 +142,4 @@ class ConeWarmStartModel(WarmStartModel):
             if p[best] >= SECOND_TOUCH_PROB:
                 g.candidates.append(Guess(c0, tf, sw, uf, source="learned-touch", touches=[rows[best]]))
         g.touch_probabilities = {int(cf.slots[k]): float(p[k]) for k in used}
-        return g, None
+        return g

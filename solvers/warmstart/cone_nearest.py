@@ -67,13 +67,15 @@ class ConeNearestNeighbourModel:
             why = "cones: the table holds problems with 1–3 cones"
         return why
 
-    def guess(self, problem, k=None) -> Guess:
-        """The solutions of the ``k`` (default ``self.k``) nearest problems, nearest first."""
+    def guess(self, problem, k=None, cf=None) -> Guess:
+        """The solutions of the ``k`` (default ``self.k``) nearest problems, nearest first.
+        ``cf``: the problem's canonical form, when the caller has it (and has checked coverage)."""
         problem = SlewProblem.from_dict(problem)
-        why = self.covers(problem)
-        if why:
-            raise ValueError(f"problem not covered by {self.name}: {why}")
-        cf = cone_canonical_form(problem)
+        if cf is None:
+            why = self.covers(problem)
+            if why:
+                raise ValueError(f"problem not covered by {self.name}: {why}")
+            cf = cone_canonical_form(problem)
         a = self.a
         _, idx = self.tree.query(cf.x / self.scale, k=min(int(k or self.k), a["X"].shape[0]))
         out = None
