@@ -36,6 +36,20 @@ def _pd(obs):
     return np.clip(5.0 * ang * axis - 3.0 * w, -1.0, 1.0)
 
 
+def _fly_pd(env, steps=400, **reset):
+    """Fly the PD law in ``env`` (reset with ``reset``) until it ends: ``(last info, smallest cone
+    margin, steps where the filter changed the action)``."""
+    obs, _ = env.reset(**reset)
+    worst, active = math.inf, 0
+    for _ in range(steps):
+        obs, _, term, _, info = env.step(_pd(obs))
+        worst = min(worst, info["min_cone_margin"])
+        active += info.get("shield_active", 0)
+        if term:
+            break
+    return info, worst, active
+
+
 @pytest.mark.parametrize("v", [[0.0, 0.0, 0.0], [1.0, -0.3, 0.5], [-0.2, 0.9, -1.0]])
 def test_barrier_terms_are_the_derivatives_of_the_flown_margin(v):
     """h(τ) of the propagated body equals h + ḣτ + ½(G·v + a0)τ² to third order."""
@@ -93,20 +107,10 @@ def test_far_from_the_cones_the_action_is_unchanged():
 
 
 def test_pd_law_enters_the_cone_without_the_shield_and_not_with_it():
-    def fly(env):
-        obs, _ = env.reset(options={"problem": _cone_problem()})
-        worst, active = math.inf, 0
-        for _ in range(400):
-            obs, _, term, _, info = env.step(_pd(obs))
-            worst = min(worst, info["min_cone_margin"])
-            active += info.get("shield_active", 0)
-            if term:
-                break
-        return info, worst, active
-
-    info, worst, _ = fly(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False))
+    prob = {"options": {"problem": _cone_problem()}}
+    info, worst, _ = _fly_pd(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False), **prob)
     assert worst < -math.radians(5)                       # straight through the cone
-    info, worst, active = fly(ConeShield(SlewEnv(task_distribution="pointing-cones")))
+    info, worst, active = _fly_pd(ConeShield(SlewEnv(task_distribution="pointing-cones")), **prob)
     assert not info["violation"] and info["is_success"]   # round it, and onto the target
     assert worst > 0.0 and active > 0
 
@@ -118,13 +122,7 @@ def test_pd_law_with_the_shield_on_drawn_cone_problems():
     for seed in range(30):
         for name, env in (("bare", SlewEnv(task_distribution="pointing-cones")),
                           ("shield", ConeShield(SlewEnv(task_distribution="pointing-cones")))):
-            obs, _ = env.reset(seed=seed)
-            worst = math.inf
-            for _ in range(400):
-                obs, _, term, _, info = env.step(_pd(obs))
-                worst = min(worst, info["min_cone_margin"])
-                if term:
-                    break
+            info, worst, _ = _fly_pd(env, seed=seed)
             counts[name] += info["violation"]
             if name == "shield":
                 margins.append(worst)
@@ -368,13 +366,7 @@ def test_two_overlapping_cones_across_the_path_are_not_squeezed_through():
     for shield in (False, True):
         env = SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False)
         env = ConeShield(env) if shield else env
-        obs, _ = env.reset(options={"problem": prob})
-        worst[shield] = math.inf
-        for _ in range(400):
-            obs, _, term, _, info = env.step(_pd(obs))
-            worst[shield] = min(worst[shield], info["min_cone_margin"])
-            if term:
-                break
+        worst[shield] = _fly_pd(env, options={"problem": prob})[1]
     assert worst[False] < -math.radians(0.1)
     assert worst[True] > 0.0
 
@@ -524,13 +516,7 @@ def test_pd_law_is_not_squeezed_into_a_narrow_gap_or_a_sharp_notch(gap_deg, bare
     for bridge in (0.0, 1.0):
         env = ConeShield(SlewEnv(task_distribution="pointing-cones", terminate_on_violation=False),
                          brake=0.6, gap_deg=bridge)
-        obs, _ = env.reset(options={"problem": _gap_problem(gap_deg)})
-        worst[bridge] = math.inf
-        for _ in range(300):
-            obs, _, term, _, info = env.step(_pd(obs))
-            worst[bridge] = min(worst[bridge], info["min_cone_margin"])
-            if term:
-                break
+        worst[bridge] = _fly_pd(env, 300, options={"problem": _gap_problem(gap_deg)})[1]
     assert worst[0.0] < math.radians(bare_below)
     assert worst[1.0] > math.radians(bridged_above)
 
@@ -538,9 +524,5 @@ def test_pd_law_is_not_squeezed_into_a_narrow_gap_or_a_sharp_notch(gap_deg, bare
 def test_a_passable_gap_stays_open():
     """A gap wider than the threshold is flown through (the PD law reaches the target)."""
     env = ConeShield(SlewEnv(task_distribution="pointing-cones"), brake=0.6)
-    obs, _ = env.reset(options={"problem": _gap_problem(1.2)})
-    for _ in range(300):
-        obs, _, term, _, info = env.step(_pd(obs))
-        if term:
-            break
+    info, _, _ = _fly_pd(env, 300, options={"problem": _gap_problem(1.2)})
     assert info["is_success"] and not info["violation"]

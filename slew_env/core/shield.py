@@ -141,21 +141,15 @@ def axis_barrier_terms(obs, c0, c1, c2, alpha, delta):
 
 
 @njit(cache=True)
-def _angle_between(a0, a1, a2, b0, b1, b2):
-    d = a0 * b0 + a1 * b1 + a2 * b2
-    return math.acos(min(1.0, max(-1.0, d)))
-
-
-@njit(cache=True)
 def _bridge_fits(obs, m0, m1, m2, r, gap, B, n):
     """Append the bridge (axis ``m``, radius ``r``) to ``B`` unless it would hold the target
     (``r`` shrinks to keep it out; dropped if that leaves it narrower than ``gap``) or the
     sensor is already in it; returns the new count."""
-    tm = _angle_between(obs[_k.OB_TARGET], obs[_k.OB_TARGET + 1], obs[_k.OB_TARGET + 2], m0, m1, m2)
+    tm = _k._angle(obs[_k.OB_TARGET], obs[_k.OB_TARGET + 1], obs[_k.OB_TARGET + 2], m0, m1, m2)
     r = min(r, tm - gap)
     if r < gap:
         return n
-    bm = _angle_between(obs[_k.OB_SENSOR], obs[_k.OB_SENSOR + 1], obs[_k.OB_SENSOR + 2], m0, m1, m2)
+    bm = _k._angle(obs[_k.OB_SENSOR], obs[_k.OB_SENSOR + 1], obs[_k.OB_SENSOR + 2], m0, m1, m2)
     if bm <= r:
         return n
     B[n, 0] = m0; B[n, 1] = m1; B[n, 2] = m2; B[n, 3] = r
@@ -194,7 +188,7 @@ def pair_bridges(obs, j, k, gap, delta, B):
     ok_ = _k.OB_CONES + _k.OB_CONE_STRIDE * k
     cj0 = obs[oj]; cj1 = obs[oj + 1]; cj2 = obs[oj + 2]; aj = obs[oj + 3]
     ck0 = obs[ok_]; ck1 = obs[ok_ + 1]; ck2 = obs[ok_ + 2]; ak = obs[ok_ + 3]
-    D = _angle_between(cj0, cj1, cj2, ck0, ck1, ck2)
+    D = _k._angle(cj0, cj1, cj2, ck0, ck1, ck2)
     g = D - aj - ak
     if g >= gap or D < 1e-9 or math.pi - D < 1e-9:
         return 0
@@ -325,7 +319,7 @@ def shield_action(obs, action, params, max_cones, v, out):
 
     n = 0
     ncon = min(max_cones, MAX_CONES)
-    G = np.zeros((MAX_CONES * MAX_CONES, 3))     # the cones and up to 2 bridges a pair
+    G = np.zeros((max(ncon * ncon, 1), 3))       # the cones and up to 2 bridges a pair
     d = np.zeros(G.shape[0])
     B = np.zeros((2, 4))
     gap = params[P_GAP]
