@@ -7,7 +7,7 @@ import pytest
 from slew_env import SlewEnv
 from slew_env.core import env_kernels as K
 from slew_env.shield import ConeShield
-from training.rl.capture import CaptureHandover, check, error_angle, pd_action
+from training.rl.capture import CaptureHandover, braking_action, check, error_angle, pd_action
 from training.rl.evaluate import resolve_capture
 from training.rl.train import capture_kwargs, wrap_controller
 
@@ -117,7 +117,8 @@ def test_capture_damps_the_rate_error_not_the_rate():
 
 def test_configuration_and_evaluation_flags():
     assert capture_kwargs({"capture": None}) is None
-    assert capture_kwargs({"capture": True}) == {"deg": 1.0, "kp": 5.0, "damping": 0.8}
+    assert capture_kwargs({"capture": True}) == {"deg": 1.0, "kp": 5.0, "damping": 0.8, "law": "pd",
+                                                  "brake": 0.9, "aim_deg": 0.8}
     env = wrap_controller(SlewEnv(task_distribution="pointing-cones"), shield={}, capture=check({}))
     assert isinstance(env, CaptureHandover) and isinstance(env.env, ConeShield)
     cfg = {"capture": {"deg": 2.0}}
@@ -137,6 +138,15 @@ def test_bad_capture_arguments_name_the_field():
         check({"kp": "fast"})
     with pytest.raises(ValueError, match="capture.damping"):
         check({"damping": 1.5})
+    with pytest.raises(ValueError, match="capture.law"):
+        check({"law": "bang"})
+    with pytest.raises(ValueError, match="capture.brake"):
+        check({"law": "braking", "brake": 1.2})
+    with pytest.raises(ValueError, match="capture.aim_deg"):
+        check({"law": "braking", "deg": 1.0, "aim_deg": 1.0})
+    with pytest.raises(ValueError, match="capture.aim_deg"):
+        check({"aim_deg": -0.1})
+    assert check({"law": "braking", "deg": 10, "aim_deg": 0})["aim_deg"] == 0.0
     with pytest.raises(ValueError, match="env"):
         import gymnasium as gym
         CaptureHandover(gym.make("Pendulum-v1"))
@@ -146,3 +156,68 @@ def test_bad_capture_arguments_name_the_field():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(np.zeros(2))
+
+
+def _obs_with_error(deg, axis, w=(0.0, 0.0, 0.0), J=(0.5, 0.8, 1.0), umax=(1.0, 1.0, 0.5), inv_p=0.0):
+    obs = np.zeros(K.obs_length(4))
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    half = math.radians(deg) / 2
+    obs[K.OB_DQ:K.OB_DQ + 4] = [math.cos(half), *(math.sin(half) * axis)]
+    obs[K.OB_W:K.OB_W + 3] = w
+    obs[K.OB_J:K.OB_J + 3] = J
+    obs[K.OB_UMAX:K.OB_UMAX + 3] = umax
+    obs[K.OB_INV_P] = inv_p
+    return obs
+
+
+def test_braking_law_tracks_the_braking_curve_of_the_error_axis():
+    # 6° to go about body z at rest; per-axis bound: the largest acceleration about z is u_z/J_z = 0.5
+    obs = _obs_with_error(6.0, [0, 0, 1])
+    s, beta, dt, d = 0.5, 0.9, 0.05, math.radians(6.0 - 0.8)
+    c = beta * s * dt
+    speed = math.sqrt(c * c + 2 * beta * s * d) - c
+    want = np.clip(0.8 * np.array([0.5, 0.8, 1.0]) * np.array([0, 0, speed]) / (np.array([1, 1, 0.5]) * dt), -1, 1)
+    np.testing.assert_allclose(braking_action(obs, beta, math.radians(0.8), 0.8, dt), want, atol=1e-12)
+    # the same axis already at the curve's rate: no torque about it
+    at = _obs_with_error(6.0, [0, 0, 1], w=(0.0, 0.0, speed))
+    np.testing.assert_allclose(braking_action(at, beta, math.radians(0.8), 0.8, dt), 0.0, atol=1e-12)
+    # inside the aim angle the law is the rate loop alone
+    inside = _obs_with_error(0.5, [1, 0, 0], w=(0.01, 0.0, 0.0))
+    np.testing.assert_allclose(braking_action(inside, beta, math.radians(0.8), 0.8, dt),
+                               [-0.8 * 0.5 * 0.01 / dt, 0, 0], atol=1e-12)
+
+
+def test_braking_law_uses_the_bounds_own_norm():
+    # axis (1, 1, 0)/√2, J = 1, u_max = 1: per axis the acceleration about it is √2, with a 2-norm bound 1
+    e = [1.0, 1.0, 0.0]
+    for inv_p, s in ((0.0, math.sqrt(2.0)), (0.5, 1.0)):
+        obs = _obs_with_error(20.0, e, J=(1, 1, 1), umax=(1, 1, 1), inv_p=inv_p)
+        c = 0.5 * s * 1e-3
+        speed = math.sqrt(c * c + 2 * 0.5 * s * math.radians(20.0)) - c
+        a = braking_action(obs, 0.5, 0.0, 1e-3, 1e-3)     # damping = dt: the action is the rate asked for
+        np.testing.assert_allclose(a, speed * np.array(e) / math.sqrt(2.0), rtol=1e-12)
+    batch = np.stack([_obs_with_error(20.0, e, J=(1, 1, 1), umax=(1, 1, 1), inv_p=ip) for ip in (0.0, 0.5)])
+    np.testing.assert_allclose(braking_action(batch, 0.5, 0.0, 1e-3, 1e-3)[1],
+                               braking_action(batch[1], 0.5, 0.0, 1e-3, 1e-3), rtol=1e-15)
+
+
+def test_braking_law_flies_in_from_8_degrees_near_the_bang_bang_time():
+    """At rest 8° off the target, the braking law succeeds within 1.3× the bang-bang rest-to-rest
+    time about the error axis (to the aim angle); the PD law takes over 5× as long."""
+    times = {}
+    for law in ("pd", "braking"):
+        env = CaptureHandover(SlewEnv(task_distribution="pointing-cones"), deg=10.0, law=law)
+        env.reset(seed=4)
+        o, _ = env.reset(options={"problem": _near_target(env.unwrapped.problem, 8.0)})
+        axis = o[K.OB_DQ + 1:K.OB_DQ + 4] / np.linalg.norm(o[K.OB_DQ + 1:K.OB_DQ + 4])
+        s = 1.0 / np.max(np.abs(o[K.OB_J:K.OB_J + 3] * axis / o[K.OB_UMAX:K.OB_UMAX + 3]))
+        for _ in range(400):
+            o, _, term, trunc, info = env.step(np.ones(3))      # the policy's action is ignored throughout
+            assert info["captured"] or info["is_success"]
+            if term or trunc:
+                break
+        assert info["is_success"]
+        times[law] = info["time"] / env.unwrapped.problem.time_unit
+    bang = 2.0 * math.sqrt(math.radians(8.0 - 0.8) / s)
+    assert bang < times["braking"] < 1.3 * bang
+    assert times["pd"] > 5 * times["braking"]

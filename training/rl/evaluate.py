@@ -419,6 +419,13 @@ def _shield_text(kw: dict) -> str:
     return ", ".join(f"{k} {v:g}" for k, v in cfg.items())
 
 
+def _capture_text(kw: dict) -> str:
+    if kw.get("law") == "braking":
+        return (f"braking curve: brake {kw['brake']:g}, aim {kw['aim_deg']:g}°, "
+                f"damping {kw['damping']:g}")
+    return f"kp {kw['kp']:g}, damping {kw['damping']:g}"
+
+
 def report_markdown(results: dict, with_plot: bool) -> str:
     s = results["summary"]
     ti = results.get("train_info") or {}
@@ -429,8 +436,8 @@ def report_markdown(results: dict, with_plot: bool) -> str:
                f"deterministic, at most {results['max_steps']} control steps"
              + (f", through the keep-out-cone filter `ConeShield` ({_shield_text(results['shield'])})"
                 if results.get("shield") is not None else ", without a safety filter")
-             + (f", with the capture law within {results['capture']['deg']:g}° of the target (kp "
-                f"{results['capture']['kp']:g}, damping {results['capture']['damping']:g})"
+             + (f", with the capture law within {results['capture']['deg']:g}° of the target ("
+                + _capture_text(results["capture"]) + ")"
                 if results.get("capture") is not None else "") + ".", ""]
     if results.get("command"):
         lines += ["```", results["command"], "```", ""]
