@@ -256,6 +256,7 @@ class SlewEnv(gym.Env):
         self._cfg = make_config(control_dt, substeps, success_bonus, violation_penalty,
                                 terminate_on_violation, shaping, att_tol_deg, rate_tol)
         self.control_dt = float(control_dt)
+        self.att_tol_deg = float(att_tol_deg)     # success tolerance (deg), read by wrappers such as CaptureHandover
         self.substeps = int(substeps)
         self.terminate_on_violation = bool(terminate_on_violation)
 

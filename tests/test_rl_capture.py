@@ -167,6 +167,7 @@ def _obs_with_error(deg, axis, w=(0.0, 0.0, 0.0), J=(0.5, 0.8, 1.0), umax=(1.0, 
     obs[K.OB_J:K.OB_J + 3] = J
     obs[K.OB_UMAX:K.OB_UMAX + 3] = umax
     obs[K.OB_INV_P] = inv_p
+    obs[K.OB_RATE_LIMIT:K.OB_RATE_LIMIT + 3] = 1.0        # no rate limit
     return obs
 
 
@@ -221,3 +222,56 @@ def test_braking_law_flies_in_from_8_degrees_near_the_bang_bang_time():
     bang = 2.0 * math.sqrt(math.radians(8.0 - 0.8) / s)
     assert bang < times["braking"] < 1.3 * bang
     assert times["pd"] > 5 * times["braking"]
+
+
+def test_braking_law_tracks_the_rate_relative_to_a_spinning_target_and_any_p():
+    # a target spinning at ωf: at the curve's rate relative to it, no torque
+    obs = _obs_with_error(6.0, [0, 0, 1], w=(0.3, 0.0, 0.0))
+    obs[K.OB_WF:K.OB_WF + 3] = [0.3, 0.0, 0.0]
+    ref = _obs_with_error(6.0, [0, 0, 1])
+    np.testing.assert_allclose(braking_action(obs, 0.9, 0.0, 0.8, 0.05), braking_action(ref, 0.9, 0.0, 0.8, 0.05),
+                               atol=1e-15)
+    # p = 1.5 on an asymmetric axis: s = 1 / ‖J e / u_max‖_1.5
+    e = np.array([0.2, -0.5, 0.7])
+    e /= np.linalg.norm(e)
+    J, um = np.array([0.5, 0.8, 1.0]), np.array([1.0, 0.7, 0.5])
+    s = 1.0 / np.sum(np.abs(J * e / um) ** 1.5) ** (1 / 1.5)
+    obs = _obs_with_error(20.0, e, J=J, umax=um, inv_p=1 / 1.5)
+    speed = math.sqrt((0.5 * s * 1e-3) ** 2 + 2 * 0.5 * s * math.radians(20.0)) - 0.5 * s * 1e-3
+    np.testing.assert_allclose(braking_action(obs, 0.5, 0.0, 1e-3, 1e-3), speed * e * J / um, rtol=1e-12)
+
+
+def test_braking_law_keeps_to_a_rate_limit():
+    """15° from a full target with a rate limit of 0.15/T: the curve is capped, no rate violation."""
+    env = CaptureHandover(SlewEnv(task_distribution="full-attitude"), deg=20.0, law="braking")
+    env.reset(seed=3)
+    p = env.unwrapped.problem.to_dict()
+    T = env.unwrapped.problem.time_unit
+    half = math.radians(15.0) / 2
+    turn = np.array([math.cos(half), *(-math.sin(half) * np.array([0.6, 0.0, 0.8]))])
+    from slew_env.core.quaternion import qmul
+    p.update(omega0=[0, 0, 0], omegaf=[0, 0, 0], torque_norm="inf", rate_max=0.15 / T,
+             q0=list(qmul(np.asarray(p["qf"], float), turn)))
+    env.reset(options={"problem": p})
+    peak = 0.0
+    for _ in range(400):
+        _, _, term, trunc, info = env.step(np.zeros(3))
+        assert not info["violation"]
+        peak = max(peak, float(np.max(np.abs(env.unwrapped.state[4:7]))) * T)
+        if term or trunc:
+            break
+    assert info["is_success"]
+    assert 0.12 < peak <= 0.15          # it does use the allowed rate
+
+
+def test_braking_law_needs_an_aim_inside_the_success_tolerance():
+    with pytest.raises(ValueError, match="capture.aim_deg.*att_tol_deg"):
+        CaptureHandover(SlewEnv(att_tol_deg=0.5), deg=10.0, law="braking", aim_deg=0.8)
+    CaptureHandover(SlewEnv(att_tol_deg=0.5), deg=10.0, law="braking", aim_deg=0.4)
+    CaptureHandover(SlewEnv(att_tol_deg=0.5), deg=10.0, law="pd")       # the PD law has no aim
+    with pytest.raises(ValueError, match="capture.law"):
+        check({"law": np.array(["braking"])})
+    with pytest.raises(ValueError, match="capture.brake"):
+        check({"brake": True})
+    with pytest.raises(ValueError, match=r"capture.aim_deg.*\(the default\)"):
+        check({"law": "braking", "deg": 0.5})

@@ -285,7 +285,7 @@ def dagger(policy, family: str, seed: int, n_problems: int, out, n_pick: int = 2
 
     model, vn, cfg = load_policy(policy)
     capture = capture_kwargs(cfg)
-    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg), capture)   # fly the policy as it trained
+    env = _env_for(cfg.get("env_kwargs") or {}, shield_kwargs(cfg), capture)   # fly the policy as its config says
     handover = capture["deg"] if capture else 0.0
     if terminal_deg is not None and terminal_deg <= handover:
         raise ValueError(f"--terminal-deg: {terminal_deg:g}° is inside the policy's capture angle ({handover:g}°), "

@@ -272,10 +272,11 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
              solve_fn: Optional[str] = None, shield="policy", capture="policy") -> dict:
     """Roll the policy out on ``n`` held-out problems and compare with the optimum; returns the results dict.
 
-    ``shield``: ``"policy"`` flies the policy with the ``ConeShield`` its run trained with (none if
-    it trained without); ``"on"`` adds the filter with its defaults when the run had none; ``"off"``
-    flies the bare network; a dict gives ``ConeShield`` arguments. ``capture``: the same for
-    the PD capture law near the target (``training.rl.capture.CaptureHandover``).
+    ``shield``: ``"policy"`` flies the policy with the ``ConeShield`` of its ``config.yaml`` (the
+    run's training setting, unless edited since, as for the shipped cone policy; none if it has
+    none); ``"on"`` adds the filter with its defaults when the run had none; ``"off"`` flies the
+    bare network; a dict gives ``ConeShield`` arguments. ``capture``: the same for the capture
+    law near the target (``training.rl.capture.CaptureHandover``: PD settling or braking curve).
 
     Writes ``report.md``, ``results.json`` and (``plot_k > 0``) ``overlay.png`` to ``out``
     (default ``<policy dir>/eval-<family>-seed<seed>``).
@@ -334,8 +335,10 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     summary = summarise(episodes)
     results = {"policy": str(policy), "algo": cfg.get("algo"), "trained_family": cfg.get("family"),
                "family": family, "n": n, "seed": seed, "max_steps": max_steps, "env_kwargs": env_kwargs,
-               "shield": shield_kw, "trained_with_shield": resolve_shield("policy", cfg), "capture": capture_kw,
-               "trained_with_capture": resolve_capture("policy", cfg),
+               # the filter and capture law flown, and those of the policy's config.yaml (which may
+               # differ from the ones it trained with: see the config's comments)
+               "shield": shield_kw, "config_shield": resolve_shield("policy", cfg), "capture": capture_kw,
+               "config_capture": resolve_capture("policy", cfg),
                "solutions": str(solutions) if solutions else None, "summary": summary,
                "timing": {"solve_s": t_solve, "rollout_s": t_roll, "total_s": time.perf_counter() - t0},
                "command": command, "train_info": _train_info(pdir), "episodes": episodes}
@@ -598,11 +601,12 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS,
                    help=f"control steps before an episode counts as failed (default {DEFAULT_MAX_STEPS})")
     p.add_argument("--shield", choices=("policy", "on", "off"), default="policy",
-                   help="keep-out-cone safety filter (slew_env.shield.ConeShield): 'policy' as the run trained "
-                        "(default), 'on' the filter's defaults where the run had none, 'off' the bare network")
+                   help="keep-out-cone safety filter (slew_env.shield.ConeShield): 'policy' as the run's config.yaml "
+                        "says (default), 'on' the filter's defaults where the run had none, 'off' the bare network")
     p.add_argument("--capture", choices=("policy", "on", "off"), default="policy",
-                   help="PD capture law within a small angle of the target (training.rl.capture): 'policy' as the "
-                        "run trained (default), 'on' its defaults where the run had none, 'off' the network alone")
+                   help="capture law near the target (training.rl.capture: PD settling or braking curve): 'policy' "
+                        "as the run's config.yaml says (default), 'on' its defaults where the run had none, 'off' "
+                        "the network alone")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no solver progress bar")
 
