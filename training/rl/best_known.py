@@ -3,7 +3,7 @@
 ``slew evaluate-rl`` measures ``tf_policy / tf_optimal`` against a solutions file. A
 single solve route can miss the fastest extremal of a cone problem (on the 200 held-out
 ``pointing-cones`` problems, ``solvers.solve`` without a warm start answered 7 more than
-1 % slower than the best of three runs), so the shipped cone policy is measured against
+1 % slower than the best of three runs then), so the shipped cone policy is measured against
 the fastest verified answer of several runs::
 
     python -m training.rl.best_known OUT.jsonl RUN1.jsonl RUN2.jsonl ...
