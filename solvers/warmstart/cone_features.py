@@ -38,7 +38,8 @@ from typing import Optional
 import numpy as np
 
 from slew_env import SlewProblem
-from slew_env.core.quaternion import qconj, qmul, qrotate_inv
+from slew_env.core.quaternion import qconj, qmul
+from ..core import warmstart_kernels as _k
 
 MAX_CONES = 3
 CONE_SLOT = ("ax", "ay", "az", "half_angle", "present")
@@ -90,27 +91,20 @@ def cone_unsupported_reason(problem: SlewProblem) -> Optional[str]:
         return "omega0, omegaf: the canonical form is defined for rest-to-rest slews"
     if len(problem.cones) > MAX_CONES:
         return f"cones: at most {MAX_CONES} keep-out cones, got {len(problem.cones)}"
-    s = np.asarray(problem.sensor_axis, float)
-    s = s / np.linalg.norm(s)
-    if np.max(np.abs(s)) < 1.0 - 1e-12:
+    if _sensor_key(problem.sensor_axis) is None:
         return "sensor_axis: the canonical form needs the sensor along a body axis"
     return None
 
 
-def _arc_margin(a, half_angle, d):
-    """Smallest angle from the cone ``(a, half_angle)`` boundary to the great circle from
-    ``+x`` to ``d`` (negative when the arc enters the cone)."""
-    c = min(1.0, max(-1.0, float(d[0])))
-    th = math.acos(c)
-    p1, p2 = float(d[1]), float(d[2])
-    n = math.hypot(p1, p2)
-    # opposite target: every great circle is shortest; take the one through +z (deterministic)
-    p1, p2 = (p1 / n, p2 / n) if n > 1e-9 else (0.0, 1.0)
-    # along the arc, cos angle(a, p(σ)) = a_x cos σ + a_⊥ sin σ = R cos(σ - φ), σ ∈ [0, θ]
-    ax, ap = float(a[0]), float(a[1]) * p1 + float(a[2]) * p2
-    phi = math.atan2(ap, ax)
-    best = math.hypot(ax, ap) if 0.0 <= phi <= th else max(ax, ax * c + ap * math.sin(th))
-    return math.acos(min(1.0, max(-1.0, best))) - half_angle
+def _sensor_key(sensor_axis):
+    """``(axis, positive)`` of a sensor along a body axis, else None (plain floats: this runs
+    for every guess)."""
+    s = [float(v) for v in sensor_axis]
+    n = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+    i = max(range(3), key=lambda k: abs(s[k]))
+    if abs(s[i]) / n < 1.0 - 1e-12:
+        return None
+    return i, s[i] > 0
 
 
 def _candidates(s):
@@ -134,49 +128,26 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
     why = cone_unsupported_reason(problem)
     if why:
         raise ValueError(why)
-    s = np.asarray(problem.sensor_axis, float)
-    s = s / np.linalg.norm(s)
-    key_s = (int(np.argmax(np.abs(s))), bool(s[np.argmax(np.abs(s))] > 0))
+    key_s = _sensor_key(problem.sensor_axis)
     if key_s not in _CANDIDATES:
-        _CANDIDATES[key_s] = _candidates(s)
+        s = np.asarray(problem.sensor_axis, float)
+        cands = _candidates(s / np.linalg.norm(s))
+        _CANDIDATES[key_s] = (np.array([c[0] for c in cands]), np.array([c[1] for c in cands], dtype=np.int64),
+                              np.array([c[2] for c in cands]))
     Jmax = float(problem.inertia.max())
     umax = float(problem.torque_max.max())
-    q0 = np.asarray(problem.q0, float)
-    d_body = qrotate_inv(q0, np.asarray(problem.sensor_target, float)).tolist()
-    inertia = problem.inertia.tolist()
-    best, key_best = None, None
-    for A, perm, sg in _CANDIDATES[key_s]:
-        key = (round(inertia[perm[1]] - inertia[perm[2]], 9), round(sg[1] * d_body[perm[1]], 9),
-               round(sg[2] * d_body[perm[2]], 9))
-        if key_best is None or key > key_best:
-            best, key_best = A, key
-    A = best
-    d = A @ np.asarray(d_body)
-    d = d / math.sqrt(float(d @ d))
-    Jn = (np.abs(A) @ problem.inertia) / Jmax
-    un = (np.abs(A) @ problem.torque_max) / umax
-    cones = []
-    for i, c in enumerate(problem.cones):
-        a = A @ qrotate_inv(q0, c.axis)
-        a = a / math.sqrt(float(a @ a))
-        cones.append((_arc_margin(a, c.half_angle, d), i, a, float(c.half_angle)))
-    cones.sort(key=lambda r: (r[0], r[1]))
-    x = np.zeros(N_CONE_FEATURES)
-    x[0:3] = d
-    x[3:6] = Jn
-    x[6:9] = un
-    for k, (_, _, a, ha) in enumerate(cones):
-        x[9 + 5 * k:9 + 5 * k + 3] = a
-        x[9 + 5 * k + 3] = ha
-        x[9 + 5 * k + 4] = 1.0
-    # eigenaxis pointing slew (cones ignored): about +x × d = (0, -d_z, d_y) through the angle
-    # between them; for an opposite target, about +z
-    th = math.acos(min(1.0, max(-1.0, float(d[0]))))
-    nax = math.hypot(float(d[1]), float(d[2]))
-    ax = np.array([0.0, -d[2] / nax, d[1] / nax]) if nax > 1e-9 else np.array([0.0, 0.0, 1.0])
-    acc = 1.0 / float(np.max(np.abs(Jn * ax) / un))    # the per-axis bound (guesses.eigenaxis_acceleration)
-    T_ref = 2.0 * math.sqrt(max(th, 1e-6) / acc)
-    return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(r[1] for r in cones))
+    axes = np.array([c.axis for c in problem.cones], dtype=np.float64).reshape(-1, 3)
+    half = np.array([c.half_angle for c in problem.cones], dtype=np.float64)
+    cA, cperm, csg = _CANDIDATES[key_s]
+    # compiled (solvers.core.warmstart_kernels.cone_canonical): the target and cone axes in the
+    # start body frame; A the candidate with the largest (J'_y - J'_z, d'_y, d'_z) to 9
+    # decimals; the cones sorted by their margin to the arc from the sensor to the target; the
+    # features; the eigenaxis pointing time
+    A, x, T_ref, slots = _k.cone_canonical(
+        np.ascontiguousarray(problem.q0, dtype=np.float64), np.ascontiguousarray(problem.sensor_target, dtype=np.float64),
+        np.ascontiguousarray(problem.inertia, dtype=np.float64), np.ascontiguousarray(problem.torque_max, dtype=np.float64),
+        cA, cperm, csg, axes, half)
+    return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(int(i) for i in slots))
 
 
 def canonical_problem(x) -> SlewProblem:

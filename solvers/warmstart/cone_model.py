@@ -30,6 +30,7 @@ import time
 import numpy as np
 
 from slew_env import SlewProblem
+from ..core import warmstart_kernels as _k
 from ..guesses import Guess
 from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason,
                             solution_from_canonical)
@@ -99,20 +100,13 @@ class ConeWarmStartModel(WarmStartModel):
     def predict_canonical(self, x, T_ref):
         """``(z', T, touch probabilities, touch instants, multipliers, first-arc signs, switch
         instants per axis)``, canonical and nondimensional (cone quantities per slot)."""
-        out = self.forward(x)[0].astype(np.float64)
-        L, K = self.layout, self.K
-        z = out[slice(*L["z"])]
-        z = z / max(float(np.linalg.norm(z)), 1e-12)
-        T = float(T_ref * math.exp(out[L["log_T_ratio"][0]]))
-        p = 1.0 / (1.0 + np.exp(-out[slice(*L["touch_logit"])]))
-        # strictly inside (0, T) even where the sigmoid saturates
-        tc = T * np.clip(1.0 / (1.0 + np.exp(-out[slice(*L["touch_time_logit"])])), 1e-6, 1.0 - 1e-6)
-        nu = np.exp(np.clip(out[slice(*L["log_nu"])], -20.0, 5.0))
-        uf = np.where(out[slice(*L["u_first_logit"])] >= 0.0, 1.0, -1.0)
-        cl = out[slice(*L["count_logits"])].reshape(3, K + 1)
-        tl = out[slice(*L["times_logit"])].reshape(3, K)
-        sw = [np.sort(T / (1.0 + np.exp(-tl[i, :int(np.argmax(cl[i]))]))) for i in range(3)]
-        return z, T, p, tc, nu, uf, sw
+        out = self.forward(np.asarray(x, np.float64).reshape(-1))[0]
+        L = self.layout
+        n_slots = L["touch_logit"][1] - L["touch_logit"][0]
+        z, T, p, tc, nu, uf, counts, tt = _k.decode_cone(
+            out, self.K, n_slots, L["z"][0], L["log_T_ratio"][0], L["touch_logit"][0], L["touch_time_logit"][0],
+            L["log_nu"][0], L["u_first_logit"][0], L["count_logits"][0], L["times_logit"][0], float(T_ref))
+        return z, T, p, tc, nu, uf, [tt[i, :counts[i]] for i in range(3)]
 
     def guess_or_reason(self, problem, propagate=True):
         problem = SlewProblem.from_dict(problem)

@@ -35,7 +35,7 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qconj, qmul
-from ..guesses import eigenaxis_axis_angle
+from ..core import warmstart_kernels as _k
 
 FEATURE_NAMES = ("n1", "n2", "n3", "theta_over_pi", "J1", "J2", "J3", "u1", "u2", "u3", "inv_p")
 N_FEATURES = len(FEATURE_NAMES)
@@ -69,33 +69,16 @@ def canonical_form(problem) -> CanonicalForm:
     why = unsupported_reason(problem)
     if why:
         raise ValueError(why)
-    n, th = eigenaxis_axis_angle(problem)
-    a = [abs(float(v)) for v in n]
-    order = tuple(sorted(range(3), key=lambda i: -a[i]))   # stable: ties keep the axis order
-    P = np.zeros((3, 3))
-    for i, j in enumerate(order):
-        P[i, j] = 1.0
-    # parity of the permutation = det P; det(D P) = +1 makes A a rotation, not a reflection
-    parity = 1.0 if order in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
-    d = np.array([1.0 if n[order[0]] >= 0 else -1.0, 1.0 if n[order[1]] >= 0 else -1.0, 1.0])
-    d[2] = parity * d[0] * d[1]
-    A = d[:, None] * P
+    # compiled (solvers.core.warmstart_kernels.attitude_canonical): the eigenaxis n and angle θ
+    # of q0* ⊗ qf; A sorts the axes by decreasing |n_i| (ties in axis order) with n'_1, n'_2 ≥ 0
+    # and det A = +1; x = [A n, θ/π, J', u', 1/p]; T_eig from the largest constant acceleration
+    A, order_arr, x, T_eig = _k.attitude_canonical(
+        np.ascontiguousarray(problem.q0, dtype=np.float64), np.ascontiguousarray(problem.qf, dtype=np.float64),
+        np.ascontiguousarray(problem.inertia, dtype=np.float64),
+        np.ascontiguousarray(problem.torque_max, dtype=np.float64), float(problem.torque_norm))
+    order = (int(order_arr[0]), int(order_arr[1]), int(order_arr[2]))
     Jmax = float(problem.inertia.max())
     umax = float(problem.torque_max.max())
-    Jn = problem.inertia[list(order)] / Jmax
-    un = problem.torque_max[list(order)] / umax
-    p = problem.torque_norm
-    inv_p = 0.0 if math.isinf(p) else 1.0 / p
-    x = np.empty(N_FEATURES)
-    x[0:3] = A @ n
-    x[3] = th / math.pi
-    x[4:7] = Jn
-    x[7:10] = un
-    x[10] = inv_p
-    # the eigenaxis guess's time: rest-to-rest about n' with the largest constant acceleration
-    a = np.abs(Jn * x[0:3]) / un
-    acc = 1.0 / float(np.max(a)) if math.isinf(p) else 1.0 / float(np.sum(a ** p) ** (1.0 / p))
-    T_eig = 2.0 * math.sqrt(max(th, 1e-12) / acc)
     return CanonicalForm(A, order, x, math.sqrt(Jmax / umax), T_eig)
 
 

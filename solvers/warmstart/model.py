@@ -34,6 +34,7 @@ from typing import Optional
 import numpy as np
 
 from slew_env import SlewProblem
+from ..core import warmstart_kernels as _k
 from ..guesses import Guess
 from .features import N_FEATURES, canonical_form, solution_from_canonical, unsupported_reason
 
@@ -125,6 +126,10 @@ class WarmStartModel:
         self.activation = card.get("activation", "silu")
         if self.activation not in ACTIVATIONS:
             raise ModelFileError(f"card.activation: unknown activation {self.activation!r}")
+        # the compiled single-row path (``forward`` of one row): row-major copies, one call
+        self._rows = (tuple(np.ascontiguousarray(W) for W, _ in self.weights),
+                      tuple(np.ascontiguousarray(b) for _, b in self.weights),
+                      ACTIVATIONS.index(self.activation))
         self._check_layout(card)
         self.domain = card.get("domain", {})
         self.name = card.get("name", "warm-start model")
@@ -230,7 +235,12 @@ class WarmStartModel:
 
     # ------------------------------------------------------------------ inference
     def forward(self, X):
-        """Raw outputs for a batch of feature rows ``X`` (n, N_FEATURES)."""
+        """Raw outputs for a batch of feature rows ``X`` (n, N_FEATURES), or ``(1, n_out)`` for
+        one row ``X`` (N_FEATURES,) (compiled: ``solvers.core.warmstart_kernels.mlp_forward``)."""
+        if np.ndim(X) == 1:
+            Ws, bs, act = self._rows
+            return _k.mlp_forward(np.ascontiguousarray(X, dtype=np.float64), self.x_mean, self.x_std,
+                                  Ws, bs, act)[None, :]
         h = ((np.atleast_2d(X) - self.x_mean) / self.x_std).astype(np.float32)
         last = len(self.weights) - 1
         for k, (W, b) in enumerate(self.weights):
@@ -240,29 +250,12 @@ class WarmStartModel:
         return h
 
     def predict_canonical(self, x, T_eig) -> Prediction:
-        # plain Python on the ~50 outputs: numpy's per-call overhead dominates at this size
-        out = self.forward(x)[0].tolist()
-        L, K = self.layout, self.K
-        z = out[L["z"][0]:L["z"][1]]
-        nz = max(math.sqrt(sum(v * v for v in z)), 1e-12)
-        z = np.array([v / nz for v in z])
-        T = float(T_eig * math.exp(out[L["log_T_ratio"][0]]))
-        uf = np.array([1.0 if v >= 0.0 else -1.0 for v in out[L["u_first_logit"][0]:L["u_first_logit"][1]]])
-        c0, t0 = L["count_logits"][0], L["times_logit"][0]
-        cp = np.empty((3, K + 1))
-        counts = np.empty(3, dtype=np.int64)
-        times = []
-        for i in range(3):
-            row = out[c0 + i * (K + 1):c0 + (i + 1) * (K + 1)]
-            m = max(row)
-            e = [math.exp(v - m) for v in row]
-            se = sum(e)
-            cp[i] = [v / se for v in e]
-            c = max(range(K + 1), key=lambda k: row[k])
-            counts[i] = c
-            fr = sorted(1.0 / (1.0 + math.exp(-v)) for v in out[t0 + i * K:t0 + i * K + c])
-            times.append(np.array(fr) * T)
-        return Prediction(z, T, uf, counts, cp, times)
+        out = self.forward(np.asarray(x, np.float64).reshape(-1))[0]
+        L = self.layout
+        z, T, uf, counts, cp, tt = _k.decode_attitude(out, self.K, L["z"][0], L["log_T_ratio"][0],
+                                                     L["u_first_logit"][0], L["count_logits"][0],
+                                                     L["times_logit"][0], float(T_eig))
+        return Prediction(z, T, uf, counts, cp, [tt[i, :counts[i]] for i in range(3)])
 
     def guess(self, problem, propagate=True) -> Guess:
         """The learned guess for ``problem`` (``ValueError`` if the model does not cover it)."""

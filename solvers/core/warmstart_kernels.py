@@ -1,0 +1,310 @@
+"""Compiled kernels of the learned warm start's inference: the network and the
+full-attitude canonical form and output decoding (``solvers.warmstart``).
+
+At these sizes (a 1×256 row through 256×256 layers, 43 outputs) numpy spends most of its
+time in per-call overhead; one compiled call per stage keeps a guess's inference well under
+the 100 µs a solve can spare for it. The numpy paths stay the reference: for a batch of
+rows ``WarmStartModel.forward`` still multiplies matrices in numpy.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from slew_env.core.quaternion import qconj, qmul, qrotate_inv
+
+ACT_SILU, ACT_TANH, ACT_RELU = 0, 1, 2
+
+
+# tanh as a rational function (odd degree 13 over even degree 6, clamped beyond |x| = 7.9053):
+# within 3.5e-7 of tanh in float32 arithmetic, and free of library calls, so the loop over a
+# layer's 256 units vectorises (a libm call per unit took two thirds of the network's time)
+_TA = (4.89352455891786e-03, 6.37261928875436e-04, 1.48572235717979e-05, 5.12229709037114e-08,
+       -8.60467152213735e-11, 2.00018790482477e-13, -2.76076847742355e-16)
+_TB = (4.89352518554385e-03, 2.26843463243900e-03, 1.18534705686654e-04, 1.19825839466702e-06)
+_TCLAMP = 7.90531110763549805
+A1, A3, A5, A7, A9, A11, A13 = (np.float32(v) for v in _TA)
+B0, B2, B4, B6 = (np.float32(v) for v in _TB)
+TCLAMP = np.float32(_TCLAMP)
+
+
+@njit(cache=True, inline="always")
+def fast_tanh(x):
+    """float32 tanh within 3.5e-7 (``_TA``, ``_TB``)."""
+    x = min(max(x, -TCLAMP), TCLAMP)
+    x2 = x * x
+    p = x * (A1 + x2 * (A3 + x2 * (A5 + x2 * (A7 + x2 * (A9 + x2 * (A11 + x2 * A13))))))
+    q = B0 + x2 * (B2 + x2 * (B4 + x2 * B6))
+    return p / q
+
+
+@njit(cache=True)
+def _dense(h, W, b, out):
+    """``out = h W + b`` for one row (W row-major: the inner loop runs along a row)."""
+    n_in, n_out = W.shape
+    for j in range(n_out):
+        out[j] = b[j]
+    for i in range(n_in):
+        hi = h[i]
+        for j in range(n_out):
+            out[j] += hi * W[i, j]
+
+
+@njit(cache=True)
+def mlp_forward(x, mean, std, weights, biases, act):
+    """Raw float32 outputs of the MLP for one feature row ``x`` (float64, standardised by
+    ``mean``, ``std``); ``weights``, ``biases`` tuples of C-contiguous float32 arrays, ``act``
+    the hidden activation (``ACT_*``); none on the last layer."""
+    h = np.empty(x.shape[0], np.float32)
+    for i in range(x.shape[0]):
+        h[i] = np.float32((x[i] - mean[i]) / std[i])
+    last = len(weights) - 1
+    for k in range(len(weights)):
+        out = np.empty(weights[k].shape[1], np.float32)
+        _dense(h, weights[k], biases[k], out)
+        if k < last:
+            for j in range(out.shape[0]):
+                v = out[j]
+                if act == ACT_SILU:
+                    out[j] = np.float32(0.5) * v * (np.float32(1.0) + fast_tanh(np.float32(0.5) * v))
+                elif act == ACT_TANH:
+                    out[j] = fast_tanh(v)
+                else:
+                    out[j] = max(v, np.float32(0.0))
+        h = out
+    return h
+
+
+@njit(cache=True)
+def attitude_canonical(q0, qf, J, umax, p):
+    """The full-attitude canonical form (``solvers.warmstart.features``): ``(A, order, x,
+    T_eig)`` for a rest-to-rest slew from ``q0`` to ``qf`` with inertia ``J``, bound ``umax``
+    and norm ``p`` (``inf``: per axis)."""
+    d = qmul(qconj(q0), qf)
+    if d[0] < 0.0:
+        d = -d
+    v = math.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
+    n = np.empty(3)
+    if v < 1e-15:
+        n[0], n[1], n[2] = 1.0, 0.0, 0.0
+        th = 0.0
+    else:
+        n[0], n[1], n[2] = d[1] / v, d[2] / v, d[3] / v
+        th = 2.0 * math.atan2(v, d[0])
+    # axes by decreasing |n_i|; a tie keeps the axis order (a stable sort)
+    order = np.arange(3)
+    for i in range(1, 3):
+        j = i
+        while j > 0 and abs(n[order[j]]) > abs(n[order[j - 1]]):
+            order[j], order[j - 1] = order[j - 1], order[j]
+            j -= 1
+    even = (order[0] == 0 and order[1] == 1) or (order[0] == 1 and order[1] == 2) or \
+        (order[0] == 2 and order[1] == 0)
+    parity = 1.0 if even else -1.0
+    s0 = 1.0 if n[order[0]] >= 0.0 else -1.0
+    s1 = 1.0 if n[order[1]] >= 0.0 else -1.0
+    sg = np.array([s0, s1, parity * s0 * s1])
+    A = np.zeros((3, 3))
+    for i in range(3):
+        A[i, order[i]] = sg[i]
+    Jmax = max(J[0], max(J[1], J[2]))
+    umx = max(umax[0], max(umax[1], umax[2]))
+    x = np.empty(11)
+    for i in range(3):
+        x[i] = sg[i] * n[order[i]]
+        x[4 + i] = J[order[i]] / Jmax
+        x[7 + i] = umax[order[i]] / umx
+    x[3] = th / math.pi
+    x[10] = 0.0 if math.isinf(p) else 1.0 / p
+    # the eigenaxis guess's time: rest-to-rest about n' with the largest constant acceleration
+    if math.isinf(p):
+        amax = 0.0
+        for i in range(3):
+            amax = max(amax, abs(x[4 + i] * x[i]) / x[7 + i])
+        acc = 1.0 / amax
+    else:
+        s = 0.0
+        for i in range(3):
+            s += (abs(x[4 + i] * x[i]) / x[7 + i]) ** p
+        acc = 1.0 / s ** (1.0 / p)
+    T_eig = 2.0 * math.sqrt(max(th, 1e-12) / acc)
+    return A, order, x, T_eig
+
+
+@njit(cache=True)
+def _unit_costates(out, i_z):
+    """The 6 costate outputs from ``i_z`` on, scaled to unit norm (float64)."""
+    z = np.empty(6)
+    nz = 0.0
+    for i in range(6):
+        z[i] = out[i_z + i]
+        nz += z[i] * z[i]
+    nz = max(math.sqrt(nz), 1e-12)
+    for i in range(6):
+        z[i] /= nz
+    return z
+
+
+@njit(cache=True)
+def decode_attitude(out, K, i_z, i_logT, i_uf, i_counts, i_times, T_eig):
+    """The full-attitude network's outputs ``out`` decoded: ``(z', T, u_first', counts,
+    count probabilities (3, K+1), switch instants (3, K): row i sorted, its first counts[i]
+    used)`` (``WarmStartModel.predict_canonical``)."""
+    z = _unit_costates(out, i_z)
+    T = T_eig * math.exp(float(out[i_logT]))
+    uf = np.empty(3)
+    for i in range(3):
+        uf[i] = 1.0 if out[i_uf + i] >= 0.0 else -1.0
+    cp = np.empty((3, K + 1))
+    counts = np.zeros(3, np.int64)
+    times = np.zeros((3, K))
+    for i in range(3):
+        base = i_counts + i * (K + 1)
+        m = float(out[base])
+        best = 0
+        for k in range(1, K + 1):
+            if out[base + k] > out[base + best]:
+                best = k
+            m = max(m, float(out[base + k]))
+        se = 0.0
+        for k in range(K + 1):
+            cp[i, k] = math.exp(float(out[base + k]) - m)
+            se += cp[i, k]
+        for k in range(K + 1):
+            cp[i, k] /= se
+        counts[i] = best
+        for k in range(best):
+            times[i, k] = 1.0 / (1.0 + math.exp(-float(out[i_times + i * K + k])))
+        times[i, :best] = np.sort(times[i, :best]) * T
+    return z, T, uf, counts, cp, times
+
+
+# --------------------------------------------------------------------------- pointing with cones
+@njit(cache=True)
+def _round9(v):
+    """``v`` to 9 decimals (the tie-breaking keys of the cone canonical form)."""
+    return np.rint(v * 1e9) / 1e9
+
+
+@njit(cache=True)
+def _arc_margin(a, half_angle, d):
+    """Smallest angle from the cone ``(a, half_angle)`` boundary to the great circle from
+    ``+x`` to ``d`` (negative when the arc enters the cone; ``cone_features._arc_margin``)."""
+    c = min(1.0, max(-1.0, d[0]))
+    th = math.acos(c)
+    p1, p2 = d[1], d[2]
+    n = math.hypot(p1, p2)
+    # opposite target: every great circle is shortest; take the one through +z (deterministic)
+    if n > 1e-9:
+        p1, p2 = p1 / n, p2 / n
+    else:
+        p1, p2 = 0.0, 1.0
+    ax, ap = a[0], a[1] * p1 + a[2] * p2
+    phi = math.atan2(ap, ax)
+    if 0.0 <= phi <= th:
+        best = math.hypot(ax, ap)
+    else:
+        best = max(ax, ax * c + ap * math.sin(th))
+    return math.acos(min(1.0, max(-1.0, best))) - half_angle
+
+
+@njit(cache=True)
+def cone_canonical(q0, target, J, umax, cand_A, cand_perm, cand_sg, cone_axes, half_angles):
+    """The pointing-cones canonical form (``solvers.warmstart.cone_features``) of the slew from
+    ``q0`` that points the sensor at ``target`` past cones with inertial axes ``cone_axes``
+    (n, 3): ``(A, x, T_ref, slots)``. ``cand_*``: the signed permutations with ``A s = +x`` for
+    the sensor ``s``, as ``(A v)_i = sg[i] v[perm[i]]``."""
+    d_body = qrotate_inv(q0, target)
+    n = cone_axes.shape[0]
+    axes_body = np.empty((n, 3))
+    for i in range(n):
+        axes_body[i] = qrotate_inv(q0, cone_axes[i])
+    # A: the candidate with the largest key (J'_y - J'_z, d'_y, d'_z), each to 9 decimals (a
+    # tie within that goes to the next entry, then to the first candidate)
+    best = 0
+    k0 = k1 = k2 = -np.inf
+    for c in range(cand_A.shape[0]):
+        pm = cand_perm[c]
+        sg = cand_sg[c]
+        a0 = _round9(J[pm[1]] - J[pm[2]])
+        a1 = _round9(sg[1] * d_body[pm[1]])
+        a2 = _round9(sg[2] * d_body[pm[2]])
+        if c == 0 or a0 > k0 or (a0 == k0 and (a1 > k1 or (a1 == k1 and a2 > k2))):
+            best, k0, k1, k2 = c, a0, a1, a2
+    A = cand_A[best].copy()
+    d = A @ d_body
+    d = d / math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    Jmax = max(J[0], max(J[1], J[2]))
+    umx = max(umax[0], max(umax[1], umax[2]))
+    absA = np.abs(A)
+    Jn = (absA @ J) / Jmax
+    un = (absA @ umax) / umx
+    margins = np.empty(n)
+    axes = np.empty((n, 3))
+    for i in range(n):
+        a = A @ axes_body[i]
+        a = a / math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        axes[i] = a
+        margins[i] = _arc_margin(a, half_angles[i], d)
+    # slots: most blocking first (smallest margin), ties by the problem's order
+    slots = np.arange(n)
+    for i in range(1, n):
+        j = i
+        while j > 0 and margins[slots[j]] < margins[slots[j - 1]]:
+            slots[j], slots[j - 1] = slots[j - 1], slots[j]
+            j -= 1
+    x = np.zeros(9 + 5 * 3)
+    x[0:3] = d
+    x[3:6] = Jn
+    x[6:9] = un
+    for k in range(n):
+        i = slots[k]
+        x[9 + 5 * k:12 + 5 * k] = axes[i]
+        x[12 + 5 * k] = half_angles[i]
+        x[13 + 5 * k] = 1.0
+    # eigenaxis pointing slew (cones ignored): about +x × d = (0, -d_z, d_y) through the angle
+    # between them; for an opposite target, about +z
+    th = math.acos(min(1.0, max(-1.0, d[0])))
+    nax = math.hypot(d[1], d[2])
+    ax = np.array([0.0, -d[2] / nax, d[1] / nax]) if nax > 1e-9 else np.array([0.0, 0.0, 1.0])
+    amax = 0.0
+    for i in range(3):
+        amax = max(amax, abs(Jn[i] * ax[i]) / un[i])
+    acc = 1.0 / amax                        # the per-axis bound (guesses.eigenaxis_acceleration)
+    T_ref = 2.0 * math.sqrt(max(th, 1e-6) / acc)
+    return A, x, T_ref, slots
+
+
+@njit(cache=True)
+def decode_cone(out, K, n_slots, i_z, i_logT, i_touch, i_tt, i_nu, i_uf, i_counts, i_times, T_ref):
+    """The cone network's outputs decoded (``ConeWarmStartModel.predict_canonical``): ``(z', T,
+    touch probabilities, touch instants, multipliers, first-arc signs, counts, switch instants
+    (3, K): row i sorted, its first counts[i] used)``."""
+    z = _unit_costates(out, i_z)
+    T = T_ref * math.exp(float(out[i_logT]))
+    p = np.empty(n_slots)
+    tc = np.empty(n_slots)
+    nu = np.empty(n_slots)
+    for k in range(n_slots):
+        p[k] = 1.0 / (1.0 + math.exp(-float(out[i_touch + k])))
+        # strictly inside (0, T) even where the sigmoid saturates
+        tc[k] = T * min(max(1.0 / (1.0 + math.exp(-float(out[i_tt + k]))), 1e-6), 1.0 - 1e-6)
+        nu[k] = math.exp(min(max(float(out[i_nu + k]), -20.0), 5.0))
+    uf = np.empty(3)
+    for i in range(3):
+        uf[i] = 1.0 if out[i_uf + i] >= 0.0 else -1.0
+    counts = np.zeros(3, np.int64)
+    times = np.zeros((3, K))
+    for i in range(3):
+        base = i_counts + i * (K + 1)
+        best = 0
+        for k in range(1, K + 1):
+            if out[base + k] > out[base + best]:
+                best = k
+        counts[i] = best
+        for k in range(best):
+            times[i, k] = T / (1.0 + math.exp(-float(out[i_times + i * K + k])))
+        times[i, :best] = np.sort(times[i, :best])
+    return z, T, p, tc, nu, uf, counts, times
