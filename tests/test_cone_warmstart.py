@@ -357,3 +357,56 @@ def test_a_failing_challenger_leaves_the_verified_answer(monkeypatch):
     sol = solve(TOUCH)
     assert sol.success and sol.warm_start["role"] == "challenger"
     assert sol.warm_start["won"] is False and "model bug (test)" in sol.warm_start["error"]
+
+
+def test_cone_decoding_of_the_outputs():
+    """decode_cone on made-up outputs: each cone quantity from its own block, the touch instant
+    kept inside (0, T), the multiplier's log clipped to [-20, 5], counts by argmax, sorted instants."""
+    from solvers.core.warmstart_kernels import decode_cone
+    from solvers.warmstart.cone_model import cone_output_layout
+    K = 2
+    L = cone_output_layout(K)
+    out = np.zeros(L["times_logit"][1], np.float32)
+    out[L["z"][0]:L["z"][0] + 6] = [0, 0, 5, 0, 12, 0]
+    out[L["log_T_ratio"][0]] = 0.0
+    out[slice(*L["touch_logit"])] = [2.0, -1.0, 0.0]
+    out[slice(*L["touch_time_logit"])] = [0.0, 40.0, -1.0]
+    out[slice(*L["log_nu"])] = [1.0, 9.0, -30.0]
+    out[slice(*L["u_first_logit"])] = [-1.0, 2.0, -0.5]
+    c0, t0 = L["count_logits"][0], L["times_logit"][0]
+    out[c0:c0 + 3] = [0, 0, 1]
+    out[c0 + 3:c0 + 6] = [0, 1, 0]
+    out[c0 + 6:c0 + 9] = [1, 1, 1]
+    out[t0:t0 + 2] = [2.0, -2.0]
+    out[t0 + 2:t0 + 4] = [0.5, 7.0]
+    z, T, p, tc, nu, uf, counts, tt = decode_cone(
+        out, K, 3, L["z"][0], L["log_T_ratio"][0], L["touch_logit"][0], L["touch_time_logit"][0], L["log_nu"][0],
+        L["u_first_logit"][0], c0, t0, 2.0)
+    sig = lambda v: 1 / (1 + np.exp(-np.asarray(v, float)))
+    np.testing.assert_allclose(z, [0, 0, 5 / 13, 0, 12 / 13, 0], atol=1e-7)
+    assert T == 2.0
+    np.testing.assert_allclose(p, sig([2.0, -1.0, 0.0]), rtol=1e-7)
+    np.testing.assert_allclose(tc, [1.0, 2.0 * (1 - 1e-6), 2.0 * sig(-1.0)], rtol=1e-7)
+    np.testing.assert_allclose(nu, np.exp([1.0, 5.0, -20.0]), rtol=1e-7)
+    np.testing.assert_array_equal(uf, [-1, 1, -1])
+    np.testing.assert_array_equal(counts, [2, 1, 0])
+    np.testing.assert_allclose(tt[0], 2.0 * np.sort(sig([2.0, -2.0])), rtol=1e-7)
+    np.testing.assert_allclose(tt[1, :1], 2.0 * sig([0.5]), rtol=1e-7)
+
+
+def test_cone_canonical_slots_keep_the_problem_order_on_a_tie_and_the_reference_time():
+    """Two identical cones block the arc equally: slot order is the problem's. T_ref is the
+    eigenaxis pointing slew's time about +x × d' with the largest per-axis acceleration."""
+    from slew_env import Cone
+    a = np.array([0.7, 0.7, 0.1])
+    p = SlewProblem(inertia=[0.6, 0.9, 0.7], torque_max=[1.0, 0.8, 1.0], sensor_target=[0.2, 0.9, 0.3],
+                    cones=[Cone(a, half_angle=math.radians(10)), Cone(a, half_angle=math.radians(10)),
+                           Cone([0.0, -1.0, 0.0], half_angle=math.radians(15))])
+    cf = cone_canonical_form(p)
+    assert cf.slots == (0, 1, 2)
+    np.testing.assert_array_equal(cf.x[9:14], cf.x[14:19])
+    d = cf.x[0:3]
+    th = math.acos(d[0])
+    ax = np.array([0.0, -d[2], d[1]]) / math.hypot(d[1], d[2])
+    acc = 1.0 / np.max(np.abs(cf.x[3:6] * ax) / cf.x[6:9])
+    assert cf.T_ref == pytest.approx(2 * math.sqrt(th / acc), rel=1e-14)

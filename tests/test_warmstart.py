@@ -410,8 +410,10 @@ def test_compiled_single_row_inference_matches_the_numpy_batch_path():
             out[i] = fast_tanh(a[i])
         return out
 
-    xs = np.linspace(-30.0, 30.0, 200001).astype(np.float32)
-    assert np.max(np.abs(tanh_all(xs).astype(np.float64) - np.tanh(xs.astype(np.float64)))) < 4e-7
+    xs = np.concatenate([np.linspace(-30.0, 30.0, 200001), [5.827876, -5.827876]]).astype(np.float32)
+    err = np.abs(tanh_all(xs).astype(np.float64) - np.tanh(xs.astype(np.float64)))
+    assert 3e-7 < np.max(err) < 4.2e-7                 # the documented bound, reached near 5.83
+    assert tanh_all(np.array([8.0, -50.0], np.float32)).tolist() == [1.0, -1.0]
     for name in ("full-attitude.npz", "pointing-cones.npz"):
         m = load_model(os.path.join(MODELS_DIR, name))
         rng = np.random.default_rng(1)
@@ -420,3 +422,72 @@ def test_compiled_single_row_inference_matches_the_numpy_batch_path():
         rows = np.array([m.forward(x)[0] for x in X])
         assert rows.shape == batch.shape
         np.testing.assert_allclose(rows, batch, atol=2e-6 * np.max(np.abs(batch)))
+
+
+def test_compiled_forward_for_each_activation_and_depth_and_a_wrong_row_length():
+    from solvers.warmstart.model import output_size
+    rng = np.random.default_rng(2)
+    n_out = output_size(5)
+    for act, hidden in (("tanh", [32]), ("relu", [24, 24]), ("silu", []), ("tanh", [8, 8, 8])):
+        sizes = [11] + hidden + [n_out]
+        weights = [(rng.normal(size=(a, b)) * 0.5, rng.normal(size=b) * 0.1) for a, b in zip(sizes[:-1], sizes[1:])]
+        W0 = np.asarray(weights[0][0], np.float32)
+        W0.setflags(write=False)                   # a read-only array must not break the compiled path
+        weights[0] = (W0, weights[0][1])
+        m = WarmStartModel(weights, rng.normal(size=11), rng.uniform(0.5, 2, 11), {"max_switches": 5, "activation": act})
+        X = rng.normal(size=(20, 11))
+        batch = m.forward(X)
+        rows = np.array([m.forward(x)[0] for x in X])
+        np.testing.assert_allclose(rows, batch, atol=2e-6 * np.max(np.abs(batch)))
+        m.weights = [(W * 2, b) for W, b in m.weights]         # the compiled path follows a reassignment
+        np.testing.assert_allclose(m.forward(X[0])[0], m.forward(X[:2])[0], atol=2e-6 * np.max(np.abs(m.forward(X[:2]))))
+        with pytest.raises(ValueError, match="X: expected 11 features, got 10"):
+            m.forward(X[0, :10])
+
+
+def test_decoding_of_the_outputs():
+    """decode_attitude on made-up outputs: unit costates, T = T_eig·e^out, signs, the count by
+    argmax (a tie to the fewer switches), softmax probabilities, sorted switch instants."""
+    from solvers.core.warmstart_kernels import decode_attitude
+    from solvers.warmstart.model import output_layout
+    K = 3
+    L = output_layout(K)
+    out = np.zeros(L["times_logit"][1], np.float32)
+    out[0:6] = [3, 0, 0, 4, 0, 0]
+    out[6] = math.log(2.0)
+    out[7:10] = [0.5, -0.1, 0.0]
+    c0, t0 = L["count_logits"][0], L["times_logit"][0]
+    out[c0:c0 + 4] = [0, 0, 3, 1]                       # axis 0: 2 switches
+    out[c0 + 4:c0 + 8] = [2, 2, 0, 0]                   # axis 1: a tie between 0 and 1 -> 0
+    out[c0 + 8:c0 + 12] = [0, 0, 0, 5]                  # axis 2: 3 switches
+    out[t0:t0 + 3] = [1.0, -1.0, 9.0]                   # axis 0 uses the first 2, unsorted
+    out[t0 + 6:t0 + 9] = [0.3, -2.0, 0.1]
+    z, T, uf, counts, cp, tt = decode_attitude(out, K, L["z"][0], L["log_T_ratio"][0], L["u_first_logit"][0],
+                                               c0, t0, 1.5)
+    np.testing.assert_allclose(z, [0.6, 0, 0, 0.8, 0, 0], atol=1e-7)
+    assert T == pytest.approx(3.0, rel=1e-7)
+    np.testing.assert_array_equal(uf, [1, -1, 1])
+    np.testing.assert_array_equal(counts, [2, 0, 3])
+    np.testing.assert_allclose(cp.sum(axis=1), 1.0)
+    np.testing.assert_allclose(cp[0], np.exp([0, 0, 3, 1]) / np.exp([0, 0, 3, 1]).sum(), rtol=1e-6)
+    sig = lambda v: 1 / (1 + np.exp(-np.asarray(v, float)))
+    np.testing.assert_allclose(tt[0, :2], 3.0 * np.sort(sig([1.0, -1.0])), rtol=1e-6)
+    np.testing.assert_allclose(tt[2, :3], 3.0 * np.sort(sig([0.3, -2.0, 0.1])), rtol=1e-6)
+
+
+def test_canonical_form_of_a_tie_and_its_eigenaxis_time():
+    """About (1, -1, 0)/√2: |n_1| = |n_2| keeps the axis order; n'_1, n'_2 ≥ 0 and det A = +1;
+    T_eig = 2√(θ/acc) with acc the largest constant acceleration about n' under the bound."""
+    n = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
+    th = 1.2
+    p = SlewProblem(inertia=[0.5, 0.8, 1.0], torque_max=[1.0, 0.5, 1.0],
+                    qf=[math.cos(th / 2), *(math.sin(th / 2) * n)])
+    cf = canonical_form(p)
+    assert cf.order == (0, 1, 2)
+    np.testing.assert_allclose(cf.A, np.diag([1.0, -1.0, -1.0]))
+    np.testing.assert_allclose(cf.x[:3], [1 / math.sqrt(2), 1 / math.sqrt(2), 0.0], atol=1e-15)
+    assert cf.x[3] == pytest.approx(th / math.pi)
+    np.testing.assert_allclose(cf.x[4:7], [0.5, 0.8, 1.0])
+    np.testing.assert_allclose(cf.x[7:10], [1.0, 0.5, 1.0])
+    acc = 1.0 / max(0.5 / math.sqrt(2) / 1.0, 0.8 / math.sqrt(2) / 0.5)
+    assert cf.T_eig == pytest.approx(2 * math.sqrt(th / acc), rel=1e-14)

@@ -106,6 +106,8 @@ class ConeWarmStartModel(WarmStartModel):
         z, T, p, tc, nu, uf, counts, tt = _k.decode_cone(
             out, self.K, n_slots, L["z"][0], L["log_T_ratio"][0], L["touch_logit"][0], L["touch_time_logit"][0],
             L["log_nu"][0], L["u_first_logit"][0], L["count_logits"][0], L["times_logit"][0], float(T_ref))
+        if not (math.isfinite(T) and T > 0.0):
+            raise ValueError(f"x: the network's final time is {T!r} (features outside the model's range?)")
         return z, T, p, tc, nu, uf, [tt[i, :counts[i]] for i in range(3)]
 
     def guess_or_reason(self, problem, propagate=True):

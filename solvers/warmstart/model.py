@@ -119,23 +119,32 @@ class WarmStartModel:
     def __init__(self, weights, x_mean, x_std, card: dict):
         # float32 as stored: a 1x256 by 256x256 product is twice as fast as in float64, and a
         # guess needs no more than single precision
-        self.weights = [(np.asarray(W, np.float32), np.asarray(b, np.float32)) for W, b in weights]
+        self.weights = weights
         self.x_mean = np.asarray(x_mean, np.float64)
         self.x_std = np.asarray(x_std, np.float64)
         self.card = card
         self.activation = card.get("activation", "silu")
         if self.activation not in ACTIVATIONS:
             raise ModelFileError(f"card.activation: unknown activation {self.activation!r}")
-        # the compiled single-row path (``forward`` of one row): row-major copies, one call
-        self._rows = (tuple(np.ascontiguousarray(W) for W, _ in self.weights),
-                      tuple(np.ascontiguousarray(b) for _, b in self.weights),
-                      ACTIVATIONS.index(self.activation))
         self._check_layout(card)
         self.domain = card.get("domain", {})
         self.name = card.get("name", "warm-start model")
         self.path = card.get("_path")
 
     KIND = "full-attitude"
+
+    @property
+    def weights(self):
+        """``[(W_k, b_k), ...]``, float32; assigning it also refreshes the compiled row path."""
+        return self._weights
+
+    @weights.setter
+    def weights(self, value):
+        self._weights = [(np.asarray(W, np.float32), np.asarray(b, np.float32)) for W, b in value]
+        # the compiled single-row path (``forward`` of one row): writable row-major copies, so
+        # that numba sees one array type in the tuple
+        self._rows = (tuple(np.array(W, np.float32, order="C") for W, _ in self._weights),
+                      tuple(np.array(b, np.float32, order="C") for _, b in self._weights))
 
     def _check_layout(self, card):
         self.K = int(card["max_switches"])
@@ -238,9 +247,11 @@ class WarmStartModel:
         """Raw outputs for a batch of feature rows ``X`` (n, N_FEATURES), or ``(1, n_out)`` for
         one row ``X`` (N_FEATURES,) (compiled: ``solvers.core.warmstart_kernels.mlp_forward``)."""
         if np.ndim(X) == 1:
-            Ws, bs, act = self._rows
-            return _k.mlp_forward(np.ascontiguousarray(X, dtype=np.float64), self.x_mean, self.x_std,
-                                  Ws, bs, act)[None, :]
+            Ws, bs = self._rows
+            x = np.ascontiguousarray(X, dtype=np.float64)
+            if x.shape[0] != Ws[0].shape[0] or self.x_mean.shape[0] != x.shape[0]:
+                raise ValueError(f"X: expected {Ws[0].shape[0]} features, got {x.shape[0]}")
+            return _k.mlp_forward(x, self.x_mean, self.x_std, Ws, bs, ACTIVATIONS.index(self.activation))[None, :]
         h = ((np.atleast_2d(X) - self.x_mean) / self.x_std).astype(np.float32)
         last = len(self.weights) - 1
         for k, (W, b) in enumerate(self.weights):
@@ -255,6 +266,8 @@ class WarmStartModel:
         z, T, uf, counts, cp, tt = _k.decode_attitude(out, self.K, L["z"][0], L["log_T_ratio"][0],
                                                      L["u_first_logit"][0], L["count_logits"][0],
                                                      L["times_logit"][0], float(T_eig))
+        if not (math.isfinite(T) and T > 0.0):
+            raise ValueError(f"x: the network's final time is {T!r} (features outside the model's range?)")
         return Prediction(z, T, uf, counts, cp, [tt[i, :counts[i]] for i in range(3)])
 
     def guess(self, problem, propagate=True) -> Guess:
