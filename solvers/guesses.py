@@ -29,7 +29,7 @@ from typing import List, Optional
 
 import numpy as np
 
-from slew_env.core.quaternion import qmul, qconj
+from slew_env.core.quaternion import qaxis_angle, qconj, qmul
 
 
 @dataclass
@@ -143,13 +143,9 @@ def from_nondim(bvp, z, T, source, switch_times=None, u_first=None):
 
 def eigenaxis_axis_angle(problem):
     """Eigenaxis ``n`` (body axes, unit) and angle ``θ`` in [0, π] from ``q0`` to ``qf``."""
-    d = qmul(qconj(problem.q0), problem.qf)
-    if d[0] < 0:
-        d = -d
-    v = np.linalg.norm(d[1:])
-    if v < 1e-15:
-        return np.array([1.0, 0.0, 0.0]), 0.0
-    return d[1:] / v, 2.0 * math.atan2(v, d[0])
+    n, th = qaxis_angle(np.ascontiguousarray(problem.q0, dtype=np.float64),
+                        np.ascontiguousarray(problem.qf, dtype=np.float64))
+    return n, float(th)
 
 
 def eigenaxis_acceleration(J, umax, p, n):

@@ -5,7 +5,7 @@ Inputs are trusted here: validation happens once, in ``slew_env.problem``.
 """
 from .quaternion import (
     qmul, qconj, qnormalize, qrotate, qrotate_inv, qfrom_axis_angle, qangle,
-    qerror_angle, qcanonical, qfrom_two_vectors, qfrom_uniform,
+    qerror_angle, qaxis_angle, qcanonical, qfrom_two_vectors, qfrom_uniform,
     quat_from_euler321, quat_from_euler321_deg,
 )
 from .dynamics import (
@@ -17,7 +17,7 @@ from . import task
 
 __all__ = [
     "qmul", "qconj", "qnormalize", "qrotate", "qrotate_inv", "qfrom_axis_angle",
-    "qangle", "qerror_angle", "qcanonical", "qfrom_two_vectors", "qfrom_uniform",
+    "qangle", "qerror_angle", "qaxis_angle", "qcanonical", "qfrom_two_vectors", "qfrom_uniform",
     "quat_from_euler321", "quat_from_euler321_deg",
     "STATE_DIM", "euler_rate", "state_rhs", "rk4_step", "propagate",
     "torque_from_action", "kinetic_energy",

@@ -84,6 +84,22 @@ def qerror_angle(q, qf):
 
 
 @njit(cache=True)
+def qaxis_angle(q0, qf):
+    """Axis ``n`` (unit, in the body axes of ``q0``) and angle ``θ`` in [0, π] of the rotation
+    ``q0* ⊗ qf`` taking ``q0`` to ``qf``; ``([1, 0, 0], 0)`` when they are the same attitude."""
+    d = qmul(qconj(q0), qf)
+    if d[0] < 0.0:
+        d = -d
+    v = np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
+    n = np.empty(3)
+    if v < 1e-15:
+        n[0], n[1], n[2] = 1.0, 0.0, 0.0
+        return n, 0.0
+    n[0], n[1], n[2] = d[1] / v, d[2] / v, d[3] / v
+    return n, 2.0 * np.arctan2(v, d[0])
+
+
+@njit(cache=True)
 def qcanonical(q):
     """``q`` or ``-q``, whichever has a non-negative scalar part."""
     if q[0] < 0.0:

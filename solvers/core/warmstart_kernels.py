@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from slew_env.core.quaternion import qconj, qmul, qrotate_inv
+from slew_env.core.quaternion import qaxis_angle, qrotate_inv
 
 ACT_SILU, ACT_TANH, ACT_RELU = 0, 1, 2
 
@@ -82,17 +82,7 @@ def attitude_canonical(q0, qf, J, umax, p):
     """The full-attitude canonical form (``solvers.warmstart.features``): ``(A, order, x,
     T_eig)`` for a rest-to-rest slew from ``q0`` to ``qf`` with inertia ``J``, bound ``umax``
     and norm ``p`` (``inf``: per axis)."""
-    d = qmul(qconj(q0), qf)
-    if d[0] < 0.0:
-        d = -d
-    v = math.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
-    n = np.empty(3)
-    if v < 1e-15:
-        n[0], n[1], n[2] = 1.0, 0.0, 0.0
-        th = 0.0
-    else:
-        n[0], n[1], n[2] = d[1] / v, d[2] / v, d[3] / v
-        th = 2.0 * math.atan2(v, d[0])
+    n, th = qaxis_angle(q0, qf)
     # axes by decreasing |n_i|; a tie keeps the axis order (a stable sort)
     order = np.arange(3)
     for i in range(1, 3):

@@ -108,14 +108,12 @@ def _sensor_key(sensor_axis):
 
 
 def _candidates(s):
-    """The signed permutations ``A`` with ``A s = +x``, as ``(A, perm, signs)`` with
-    ``(A v)_i = signs[i] v[perm[i]]``."""
-    out = []
-    for A in _CUBE:
-        if (A @ s)[0] > 0.5:
-            perm = [int(np.argmax(np.abs(A[i]))) for i in range(3)]
-            out.append((A, perm, [float(A[i, perm[i]]) for i in range(3)]))
-    return out
+    """The signed permutations ``A`` with ``A s = +x``, as arrays ``(A (m, 3, 3), perm (m, 3),
+    signs (m, 3))`` with ``(A v)_i = signs[i] v[perm[i]]`` (``warmstart_kernels.cone_canonical``)."""
+    As = [A for A in _CUBE if (A @ s)[0] > 0.5]
+    perm = np.array([[int(np.argmax(np.abs(A[i]))) for i in range(3)] for A in As], dtype=np.int64)
+    signs = np.array([[A[i, pm[i]] for i in range(3)] for A, pm in zip(As, perm)])
+    return np.array(As), perm, signs
 
 
 _CANDIDATES = {}
@@ -131,9 +129,7 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
     key_s = _sensor_key(problem.sensor_axis)
     if key_s not in _CANDIDATES:
         s = np.asarray(problem.sensor_axis, float)
-        cands = _candidates(s / np.linalg.norm(s))
-        _CANDIDATES[key_s] = (np.array([c[0] for c in cands]), np.array([c[1] for c in cands], dtype=np.int64),
-                              np.array([c[2] for c in cands]))
+        _CANDIDATES[key_s] = _candidates(s / np.linalg.norm(s))
     Jmax = float(problem.inertia.max())
     umax = float(problem.torque_max.max())
     axes = np.array([c.axis for c in problem.cones], dtype=np.float64).reshape(-1, 3)

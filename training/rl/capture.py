@@ -99,19 +99,25 @@ def error_angle(obs) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(dq[..., 1:], axis=-1), np.abs(dq[..., 0]))
 
 
-def pd_action(obs, kp: float, damping: float, dt: float) -> np.ndarray:
-    """The capture law's normalised action for raw observation(s) ``obs`` ((L,) or (N, L));
-    ``dt`` the control step in time units T."""
+def _rows(obs):
+    """What both laws read of raw observation(s) ``obs``: ``(rows (N, L), whether obs was one
+    row, error axis, rate error ω̃ − ω̃f (the target may spin), J̃, ũ_max)``."""
     o = np.asarray(obs, dtype=np.float64)
     single = o.ndim == 1
     o = o.reshape(1, -1) if single else o
-    dq = o[:, _k.OB_DQ:_k.OB_DQ + 4]
-    w = o[:, _k.OB_W:_k.OB_W + 3] - o[:, _k.OB_WF:_k.OB_WF + 3]     # rate error: the target may spin
+    v = o[:, _k.OB_DQ + 1:_k.OB_DQ + 4]
+    axis = v / np.maximum(np.linalg.norm(v, axis=1), 1e-12)[:, None]
+    w = o[:, _k.OB_W:_k.OB_W + 3] - o[:, _k.OB_WF:_k.OB_WF + 3]
     J = o[:, _k.OB_J:_k.OB_J + 3]
     umax = np.maximum(o[:, _k.OB_UMAX:_k.OB_UMAX + 3], 1e-12)
-    vn = np.linalg.norm(dq[:, 1:], axis=1)
+    return o, single, axis, w, J, umax
+
+
+def pd_action(obs, kp: float, damping: float, dt: float) -> np.ndarray:
+    """The capture law's normalised action for raw observation(s) ``obs`` ((L,) or (N, L));
+    ``dt`` the control step in time units T."""
+    o, single, axis, w, J, umax = _rows(obs)
     theta = error_angle(o)
-    axis = dq[:, 1:] / np.maximum(vn, 1e-12)[:, None]
     a = np.clip(kp * theta[:, None] * axis - damping * J * w / (umax * dt), -1.0, 1.0)
     return a[0] if single else a
 
@@ -120,16 +126,8 @@ def braking_action(obs, brake: float, aim: float, damping: float, dt: float) -> 
     """The braking-curve approach law's normalised action for raw observation(s) ``obs``
     ((L,) or (N, L)); ``brake`` the share β of the deceleration about the error axis,
     ``aim`` the angle (rad) it brakes to, ``dt`` the control step in time units T."""
-    o = np.asarray(obs, dtype=np.float64)
-    single = o.ndim == 1
-    o = o.reshape(1, -1) if single else o
-    dq = o[:, _k.OB_DQ:_k.OB_DQ + 4]
-    w = o[:, _k.OB_W:_k.OB_W + 3] - o[:, _k.OB_WF:_k.OB_WF + 3]
-    J = o[:, _k.OB_J:_k.OB_J + 3]
-    umax = np.maximum(o[:, _k.OB_UMAX:_k.OB_UMAX + 3], 1e-12)
+    o, single, axis, w, J, umax = _rows(obs)
     inv_p = o[:, _k.OB_INV_P]
-    vn = np.linalg.norm(dq[:, 1:], axis=1)
-    axis = dq[:, 1:] / np.maximum(vn, 1e-12)[:, None]
     # normalised torque per unit acceleration about the axis; its norm in the bound's own
     # p-norm (the max for a per-axis bound) is the inverse of the largest acceleration
     g = np.abs(J * axis / umax)
