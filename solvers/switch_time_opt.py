@@ -360,7 +360,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
 
 
 def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
-                             max_iter=SLSQP_ITERATIONS):
+                             max_iter=SLSQP_ITERATIONS, kkt_tol=None):
     """``(answer, kkt_guess, (nit, nfev))`` like ``bang_bang_answer``, from given switching
     sequences instead of a collocation answer: ``sequences`` holds ``(u_first, switch_times,
     tf)`` in the problem's units (per-axis lists of instants, for instance a near problem's
@@ -371,7 +371,9 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     multipliers' costates, an estimate where the iterate is not a KKT point (the dense costates
     are then NaN). The KKT guess is given only when the answer is a KKT point of its sequence
     (residual at most ``KKT_TOL``): after a few iterations on a singular problem it is not, and
-    the exact solver from it would fail, at tens of milliseconds. ``(None, None, (nit, nfev))``
+    the exact solver from it would fail, at tens of milliseconds; ``kkt_tol`` (default ``KKT_TOL``)
+    sets that residual (``math.inf``: the guess always, for a caller that expects a bang-bang
+    optimum, where an iterate near it leads the exact solver there). ``(None, None, (nit, nfev))``
     when nothing is verified or ``switch_time_applies`` is false."""
     t0 = time.perf_counter()
     if not switch_time_applies(problem):
@@ -411,7 +413,7 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
                                     lambda att, T=T: max(T * tf_rel_tol, T * 10.0 * att) if tf_rel_tol == tf_rel_tol
                                     else math.nan, None, t0)
         if answer is not None:
-            best = (r, answer, kkt_guess if r.kkt <= KKT_TOL else None)
+            best = (r, answer, kkt_guess if r.kkt <= (KKT_TOL if kkt_tol is None else kkt_tol) else None)
     if best is None:
         return None, None, (nit, nfev)
     r, answer, kkt_guess = best

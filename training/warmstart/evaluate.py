@@ -12,7 +12,10 @@ verified extremal, the Newton iterations, the wall time and the final time:
   optimised); converged = a verified answer, an exact extremal or a switch-time slew (counted
   apart), still with no collocation or classical fallback: where only 1 or 2 of the 5 nearest
   tabled problems are singular, the table's answer without the collocation check for an exact
-  extremal that ``solve()`` adds there. (``solve()`` consults the table before the model's
+  extremal that ``solve()`` adds there; where fewer than that are singular, the switching
+  sequences of the nearest tabled solutions, optimised, then the exact solver from their KKT
+  costates (``solvers.api._neighbour_sequences_route``; ``solve()`` runs the collocation route
+  as well when that gives no extremal). (``solve()`` consults the table before the model's
   continuation candidate, so its times differ a little.);
 * ``nearest-neighbour`` — the solutions of the k nearest problems of the training data
   (the data-driven baseline), built from the same dataset files;
@@ -119,7 +122,7 @@ def _run_one(args):
 def _with_table(prob, out):
     """The ``learned+table`` record: the ``learned`` record of this problem (run just before)
     if it converged, else the singular table's route after it, its time added."""
-    from solvers.api import _singular_table_route
+    from solvers.api import _neighbour_sequences_route, _singular_table_route, _table_votes_bang_bang
     learned = next(r for r in out if r["guess"] == "learned")
     rec = dict(learned, guess="learned+table")
     if not learned.get("covered") or learned.get("success"):
@@ -127,6 +130,9 @@ def _with_table(prob, out):
     t0 = time.perf_counter()
     info = {}
     sol, (nit, _) = _singular_table_route(prob, {}, info, exact_check=False)   # the table's answers: no collocation
+    if sol is None and _table_votes_bang_bang(info):
+        sol, (nit_nb, _) = _neighbour_sequences_route(prob, {}, info)   # the neighbours' sequences
+        nit += nit_nb
     rec["wall_time_s"] = learned["wall_time_s"] + time.perf_counter() - t0
     if sol is not None:
         rec.update(success=True, exact=bool(sol.exact), tf=float(sol.tf), nit=learned["nit"] + int(sol.nit),

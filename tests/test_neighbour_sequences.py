@@ -1,0 +1,98 @@
+"""auto's route through the nearest tabled solutions' switching sequences: where the learned
+candidates fail and the singular table votes bang-bang, the neighbours' sequences, their switch
+times optimised, lead the exact solver to the extremal without collocation."""
+import numpy as np
+import pytest
+
+from solvers import solve
+from solvers.api import _faster_verified, _neighbour_sequences_route, _table_votes_bang_bang
+
+from test_switch_time_opt import _replay
+
+
+def _held_out(index):
+    from training.generate import GenerationSpec, problem_for
+    return problem_for(GenerationSpec("full-attitude", seed=20261122), index)
+
+
+@pytest.fixture(scope="module")
+def p575():
+    """A held-out bang-bang problem on which every learned candidate fails (the network's and
+    the 8 nearest tabled solutions' costates), with its extremal by the collocation route."""
+    p = _held_out(575)
+    ref = solve(p, singular_table=False)
+    assert ref.method == "indirect" and "collocation" in ref.route
+    return p, ref
+
+
+def test_the_neighbours_sequences_lead_to_the_exact_extremal(p575):
+    p, ref = p575
+    s = solve(p)
+    assert s.warm_start["succeeded"] is False           # the learned candidates did fail
+    assert _table_votes_bang_bang(s.warm_start) and s.warm_start["singular_table"]["used"] is False
+    rec = s.warm_start["neighbour_sequences"]
+    assert rec["used"] and rec["exact"] and 1 <= rec["tried"] <= 8
+    assert s.success and s.exact and s.method == "indirect"
+    assert "nearest tabled solutions' sequences" in s.route and "exact extremal from its KKT costates" in s.route
+    assert "collocation" not in s.route.split("nearest tabled solutions' sequences", 1)[1]
+    assert s.tf == pytest.approx(ref.tf, rel=1e-9) and s.tf < s.baseline_tf
+    assert s.verification["boundary_attitude_error"]["value"] < 1e-8
+    assert max(_replay(p, s.switch_times, s.u_first, s.tf)) < 1e-8
+    # no such route without the default model, nor when the table is switched off
+    assert "neighbour_sequences" not in solve(p, singular_table=False).warm_start
+    assert "nearest tabled" not in solve(p, warm_start=None).route
+
+
+def test_a_neighbours_bang_bang_answer_must_beat_the_collocation_route():
+    # held-out 828: the neighbours' sequences give a verified bang-bang slew that is not an
+    # extremal and 1.6e-4 slower than the extremal the collocation route refines
+    p = _held_out(828)
+    info = {}
+    bang, _ = _neighbour_sequences_route(p, {}, info)
+    assert bang is not None and bang.success and bang.method == "switch-time" and not bang.exact
+    assert info["neighbour_sequences"]["used"] and info["neighbour_sequences"]["exact"] is False
+    assert max(_replay(p, bang.switch_times, bang.u_first, bang.tf)) < 1e-8
+    s = solve(p)
+    assert s.warm_start["neighbour_sequences"]["exact"] is False
+    assert s.success and s.exact and s.tf < bang.tf * (1 - 1e-5)
+    assert "collocation" in s.route
+
+
+def test_the_faster_verified_answer_is_kept_and_the_work_counted(p575):
+    p, ref = p575
+    info = {}
+    ex, _ = _neighbour_sequences_route(p, {}, info)
+    assert ex.exact and ex.tf == pytest.approx(ref.tf, rel=1e-9)
+
+    class Slower:   # a verified answer of the other route, slower
+        success, tf, method, nit, nfev, message = True, ref.tf * 1.01, "collocation", 7, 9, ""
+
+    nit = ex.nit
+    kept = _faster_verified(Slower(), ex)
+    assert kept is ex and kept.nit == nit + 7 and "faster than the collocation route's" in kept.route
+    other = Slower()
+    other.tf = ref.tf            # a tie keeps the route's answer
+    assert _faster_verified(other, ex) is other
+
+    class Failed:
+        success, tf, method, nit, nfev, message = False, float("nan"), "indirect", 1, 1, "no candidate converged"
+
+    assert _faster_verified(Failed(), ex) is ex and "no verified answer" in ex.route
+
+
+def test_evaluate_counts_the_neighbours_extremal_as_exact(p575):
+    from training.warmstart import evaluate as ev
+    ev._init(None, None)
+    rows = ev._run_one(("full-attitude", 20261122, 575, ("learned", "learned+table"), 2.0, 1.0))
+    learned, table = rows
+    assert learned["success"] is False
+    assert table["success"] and table["exact"] and table["tf"] == pytest.approx(p575[1].tf, rel=1e-9)
+    assert table["wall_time_s"] > learned["wall_time_s"]
+
+
+def test_the_vote_reader():
+    assert not _table_votes_bang_bang({})
+    assert not _table_votes_bang_bang({"singular_table": {"error": "damaged"}})
+    assert _table_votes_bang_bang({"singular_table": {"share": 0.0, "vote": 0.6}})
+    assert not _table_votes_bang_bang({"singular_table": {"share": 0.2, "vote": 0.6}})
+    assert not _table_votes_bang_bang({"singular_table": {"share": 0.8, "vote": 0.6}})
