@@ -22,6 +22,7 @@ import numpy as np
 
 from .attitude_bvp import NY
 from .core.attitude_flow import ext_rhs
+from .core.switch_sequence import sequence_flow
 
 
 @dataclass
@@ -63,36 +64,29 @@ def _residual(bvp, z, times, T, st, want_jac):
     """Residual and Jacobian in the unknowns ``x = [z (6), switch times (n), T]``.
 
     Switch times are absolute and sorted at each evaluation, so switches on
-    different axes may change order freely (the control is separable by axis).
+    different axes may change order freely (the control is separable by axis). The arcs
+    and switches run in one compiled call (``core.switch_sequence.sequence_flow``).
     """
     n = st.n
     nx = 6 + n + 1
     y, dy0 = bvp.initial(z)
     G = np.zeros((NY, nx))
     G[:, :6] = dy0
-    signs = st.signs0.astype(float).copy()
     r = np.empty(1 + n + 6)
     Jm = np.zeros((1 + n + 6, nx)) if want_jac else None
+    S_jac = Jm[1:1 + n] if want_jac else np.zeros((n, nx))
     rp, drp = bvp.param_residual(z)
     r[0] = rp[0]
     if want_jac:
         Jm[0, :6] = drp[0]
-    order = np.argsort(times, kind="stable")
-    t_prev = 0.0
-    for j in list(order) + [-1]:
-        t_next = T if j < 0 else float(times[j])
-        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
-        if y is None:
-            return None, None
-        t_prev = max(t_prev, t_next)
-        if j < 0:
-            break
-        r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
+    y, ok = sequence_flow(y, G, np.ascontiguousarray(times, dtype=float), np.ascontiguousarray(st.axes, dtype=np.int64),
+                          float(T), np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps,
+                          bvp.rtol, bvp.atol, bvp.pen, bool(want_jac), r[1:1 + n], S_jac)
+    if not ok:
+        return None, None
     rt, dry, drT = bvp.terminal(y, T)
     r[1 + n:] = rt
     if want_jac:
-        f = ext_rhs(y, bvp.umax * signs, bvp.J)
-        G[:, -1] += f
         Jm[1 + n:] = dry @ G
         Jm[1 + n:, -1] += drT
     if not np.all(np.isfinite(r)):

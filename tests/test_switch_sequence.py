@@ -1,0 +1,124 @@
+"""The compiled switching-sequence flow of switch-time shooting against the arc-by-arc Python
+loop it replaced (transition matrix per arc, then Φ @ G), and its Jacobian against finite
+differences."""
+import numpy as np
+import pytest
+
+from slew_env import SlewProblem
+from slew_env.core import qfrom_uniform
+from solvers import Guess, solve
+from solvers.attitude_bvp import NY, AttitudeBVP
+from solvers.core.attitude_flow import ext_rhs
+from solvers.switch_time import Structure, _residual, advance, solve_switch_times, switch_event
+
+
+def _python_residual(bvp, z, times, T, st, want_jac):
+    """The loop as it ran before it was compiled (kept here as the reference)."""
+    n = st.n
+    nx = 6 + n + 1
+    y, dy0 = bvp.initial(z)
+    G = np.zeros((NY, nx))
+    G[:, :6] = dy0
+    signs = st.signs0.astype(float).copy()
+    r = np.empty(1 + n + 6)
+    Jm = np.zeros((1 + n + 6, nx)) if want_jac else None
+    rp, drp = bvp.param_residual(z)
+    r[0] = rp[0]
+    if want_jac:
+        Jm[0, :6] = drp[0]
+    order = np.argsort(times, kind="stable")
+    t_prev = 0.0
+    for j in list(order) + [-1]:
+        t_next = T if j < 0 else float(times[j])
+        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
+        if y is None:
+            return None, None
+        t_prev = max(t_prev, t_next)
+        if j < 0:
+            break
+        r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
+    rt, dry, drT = bvp.terminal(y, T)
+    r[1 + n:] = rt
+    if want_jac:
+        f = ext_rhs(y, bvp.umax * signs, bvp.J)
+        G[:, -1] += f
+        Jm[1 + n:] = dry @ G
+        Jm[1 + n:, -1] += drT
+    return r, Jm
+
+
+def _cases(n_cases=12, seed=3):
+    rng = np.random.default_rng(seed)
+    for k in range(n_cases):
+        J = rng.uniform(0.3, 1.0, 3) * (10.0 if k % 3 == 0 else 1.0)
+        p = SlewProblem(J, torque_max=rng.uniform(0.2, 2.0, 3), q0=qfrom_uniform(*rng.random(3)),
+                        qf=qfrom_uniform(*rng.random(3)))
+        if k % 4 == 1:
+            p = p.replace(qf=None, sensor_axis=[0.0, 0.0, 1.0], sensor_target=rng.normal(size=3))
+        bvp = AttitudeBVP(p)
+        bvp.set_mode("bang")
+        n = int(rng.integers(0, 9))
+        T = float(rng.uniform(1.0, 4.0))
+        times = rng.uniform(0.0, 1.1 * T, n)          # some beyond T, any order
+        if n >= 2:
+            times[1] = times[0]                       # a tie keeps the callers' order
+        z = rng.normal(size=6)
+        z /= np.linalg.norm(z) * rng.uniform(0.9, 1.1)
+        st = Structure(rng.choice([-1.0, 1.0], 3), rng.integers(0, 3, n), times)
+        yield bvp, z, times, T, st
+
+
+@pytest.mark.parametrize("want_jac", [True, False])
+def test_the_compiled_sequence_flow_matches_the_python_loop(want_jac):
+    for bvp, z, times, T, st in _cases():
+        r, Jm = _residual(bvp, z, times, T, st, want_jac)
+        r0, J0 = _python_residual(bvp, z, times, T, st, want_jac)
+        assert np.allclose(r, r0, rtol=1e-12, atol=1e-13)
+        if want_jac:
+            assert np.allclose(Jm, J0, rtol=1e-11, atol=1e-12)
+        else:
+            assert Jm is None
+
+
+def test_its_jacobian_is_the_derivative_of_its_residual():
+    for bvp, z, times, T, st in list(_cases(6, seed=11)):
+        keep = times < 0.95 * T
+        times, st = times[keep], Structure(st.signs0, st.axes[keep], times[keep])
+        if st.n >= 2 and abs(times[1] - times[0]) < 1e-9:
+            times[1] += 1e-3            # central differences need distinct instants
+        bvp.rtol = bvp.atol = 1e-13
+        x = np.concatenate([z, times, [T]])
+        n = st.n
+        r, Jm = _residual(bvp, z, times, T, st, True)
+        h = 1e-6
+        for c in range(x.size):
+            xp, xm = x.copy(), x.copy()
+            xp[c] += h
+            xm[c] -= h
+            rp, _ = _residual(bvp, xp[:6], xp[6:6 + n], xp[-1], st, False)
+            rm, _ = _residual(bvp, xm[:6], xm[6:6 + n], xm[-1], st, False)
+            assert np.allclose((rp - rm) / (2 * h), Jm[:, c], rtol=1e-5, atol=1e-6), c
+
+
+def test_bad_times_fail_cleanly_and_newton_still_converges():
+    bvp, z, times, T, st = next(_cases())
+    t_bad = times.copy()
+    if t_bad.size:
+        t_bad[0] = np.nan
+        assert _residual(bvp, z, t_bad, T, st, True) == (None, None)
+    assert _residual(bvp, z, times, float("nan"), st, True) == (None, None)
+    # from a perturbed extremal, Newton on the sequence returns to it
+    p = SlewProblem([0.6, 0.8, 1.0], q0=qfrom_uniform(0.1, 0.2, 0.3), qf=qfrom_uniform(0.7, 0.4, 0.9))
+    sol = solve(p, method="indirect", warm_start=None)
+    assert sol.success and sol.exact
+    bvp = AttitudeBVP(p)
+    bvp.set_mode("bang")
+    z, T = Guess(sol.costate0, sol.tf).to_nondim(bvp)
+    axes = np.concatenate([np.full(len(s_), a) for a, s_ in enumerate(sol.switch_times)]).astype(np.int64)
+    times = np.concatenate(sol.switch_times) / bvp.tau
+    o = np.argsort(times)
+    rng = np.random.default_rng(0)
+    res = solve_switch_times(bvp, z + 1e-3 * rng.normal(size=6),
+                             Structure(np.asarray(sol.u_first, float), axes[o], times[o] * (1 + 1e-3)), T * 1.002)
+    assert res.success and res.residual_norm < 1e-12
+    assert res.T * bvp.tau == pytest.approx(sol.tf, rel=1e-10)
