@@ -245,7 +245,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     singular ones, answers with the near singular answers' sequences, optimised (tens of
     milliseconds, no collocation; ``_singular_table_route``); where the table's vote is
     uncertain (1 or 2 of the 5 nearest singular), the same, then a collocation check for an exact
-    extremal (a few tenths of a second); False: the collocation route instead.
+    extremal (a few tenths of a second); where it votes bang-bang (fewer singular), the 8 nearest
+    tabled solutions' switching sequences, optimised, then the exact solver from their KKT
+    costates (``_neighbour_sequences_route``: an extremal in tenths of a second without
+    collocation; a bang-bang answer that is not one must beat the collocation route's answer,
+    which then runs too); False: the collocation route instead.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
     predicted time, or a slew within 10° of a half turn; ``_challenge_learned_answer``) and keeps
@@ -484,6 +488,16 @@ def _singular_table_route(prob, options, info, col_opts=None, exact_check=True):
         prob, sequences, time_budget=min(SINGULAR_UNCERTAIN_BUDGET if uncertain else SINGULAR_TABLE_BUDGET, budget),
         tols=options.get("tols"), tf_rel_tol=table.tf_rel_tol, source="the singular table's neighbour",
         max_iter=SINGULAR_UNCERTAIN_ITERATIONS if uncertain else SINGULAR_TABLE_ITERATIONS)
+    if bang is None and not uncertain:
+        # none verified after 10 iterations a sequence (a long singular arc can need more: held-out
+        # problem 790, J = I over 131°, verifies at 40): the uncertain tier's iterations, once
+        left = min(SINGULAR_UNCERTAIN_BUDGET, budget - (time.perf_counter() - t0))
+        if left > 0.05:
+            bang, kkt_guess, again = bang_bang_from_sequences(
+                prob, sequences, time_budget=left, tols=options.get("tols"), tf_rel_tol=table.tf_rel_tol,
+                source="the singular table's neighbour", max_iter=SINGULAR_UNCERTAIN_ITERATIONS)
+            spent = (spent[0] + again[0], spent[1] + again[1])
+            rec["retried"] = True
     rec["time_s"] = time.perf_counter() - t0
     if bang is None:
         return None, spent

@@ -80,13 +80,18 @@ def test_the_faster_verified_answer_is_kept_and_the_work_counted(p575):
     assert _faster_verified(Failed(), ex) is ex and "no verified answer" in ex.route
 
 
-def test_evaluate_counts_the_neighbours_extremal_as_exact(p575):
+def test_evaluate_counts_the_neighbours_extremal_as_exact():
+    # held-out 460: all 11 learned candidates fail (none for lack of time); the first
+    # neighbour's sequence leads to the extremal the collocation route refines
     from training.warmstart import evaluate as ev
+    p = _held_out(460)
+    ref = solve(p, singular_table=False)
+    assert ref.exact
     ev._init(None, None)
-    rows = ev._run_one(("full-attitude", 20261122, 575, ("learned", "learned+table"), 2.0, 1.0))
+    rows = ev._run_one(("full-attitude", 20261122, 460, ("learned", "learned+table"), 2.0, 1.0))
     learned, table = rows
-    assert learned["success"] is False
-    assert table["success"] and table["exact"] and table["tf"] == pytest.approx(p575[1].tf, rel=1e-9)
+    assert learned["success"] is False and "No candidate converged" in learned["message"]
+    assert table["success"] and table["exact"] and table["tf"] == pytest.approx(ref.tf, rel=1e-9)
     assert table["wall_time_s"] > learned["wall_time_s"]
 
 

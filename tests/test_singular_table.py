@@ -309,3 +309,17 @@ def test_an_uncertain_votes_check_that_raises_leaves_the_tables_answer(tmp_path,
     assert rec["exact_check"] == "error: RuntimeError: collocation broke"
     assert "uncertain; collocation's check for an exact extremal: error" in s.route
     assert s.tf == pytest.approx(SINGULAR_TF, rel=5e-4)
+
+
+def test_a_vote_whose_short_optimisations_verify_nothing_retries_with_more_iterations():
+    # held-out 790 (J = I, 131°): 4 of the 5 nearest problems singular; 10 SLSQP iterations on
+    # each of the 3 sequences verify none, 40 reach the collocation route's answer (2.5314292)
+    from training.generate import GenerationSpec, problem_for
+    p = problem_for(GenerationSpec("full-attitude", seed=20261122), 790)
+    s = solve(p)
+    rec = s.warm_start["singular_table"]
+    assert rec["used"] and rec["retried"] and not rec["uncertain"]
+    assert s.success and s.method == "switch-time" and "singular table" in s.route
+    assert "collocation" not in s.route.split("singular table", 1)[1]
+    assert s.tf == pytest.approx(2.5314292, rel=5e-4) and s.tf < s.baseline_tf
+    assert max(_replay(p, s.switch_times, s.u_first, s.tf)) < 1e-9
