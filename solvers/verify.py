@@ -33,8 +33,8 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from slew_env.core.dynamics import propagate
 from .core import attitude_flow as af
+from .core.control_replay import replay_bang_bang_path
 from .switch_time import propagate_sequence
 
 # The dense record of an extremal caps its steps at T / DENSE_STEPS (every accepted step and both
@@ -85,25 +85,14 @@ def dense_record(bvp, z, T, n=DENSE_STEPS):
 
 def replay_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
     """``(t, x)``, ``x = [q, ω]``, from switch times and first-arc signs alone: fixed-step RK4
-    of the environment, about ``steps_per_tf`` steps over ``tf``, every step sampled."""
+    of the environment, about ``steps_per_tf`` steps over ``tf``, every step sampled
+    (``core.control_replay.replay_bang_bang_path``)."""
     events = sorted((float(t), i) for i in range(3) for t in switch_times[i])
-    signs = np.array(u_first, dtype=float)
-    x = np.concatenate([q0, w0]).astype(float)
-    ts, xs = [np.zeros(1)], [x[None, :]]
-    t_prev = 0.0
-    h_nom = tf / steps_per_tf
-    for t_next, axis in events + [(tf, -1)]:
-        dt = t_next - t_prev
-        if dt > 0:
-            n = max(1, int(math.ceil(dt / h_nom)))
-            traj = propagate(x, umax * signs, J, dt, n)
-            ts.append(t_prev + np.linspace(0.0, dt, n + 1)[1:])
-            xs.append(traj[1:])
-            x = traj[-1]
-        if axis >= 0:
-            signs[axis] = -signs[axis]
-        t_prev = max(t_prev, t_next)
-    return np.concatenate(ts), np.vstack(xs)
+    ev_t = np.array([e[0] for e in events], dtype=float)
+    ev_axis = np.array([e[1] for e in events], dtype=np.int64)
+    x0 = np.concatenate([q0, w0]).astype(float)
+    return replay_bang_bang_path(x0, np.asarray(umax, dtype=float), np.asarray(J, dtype=float), ev_t, ev_axis,
+                                 np.array(u_first, dtype=float), float(tf), float(steps_per_tf))
 
 
 def replay_bang_bang(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):

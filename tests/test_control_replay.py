@@ -68,3 +68,54 @@ def test_quadratic_control_is_clipped_to_the_bound():
     u = np.array(quadratic_control(0.0, Uk, Um, Uk1, Ulim, 2.0))
     assert np.linalg.norm(u / Ulim) == pytest.approx(1.0)
     np.testing.assert_allclose(u / np.linalg.norm(u), Uk / np.linalg.norm(Uk))
+
+
+def _python_bang_bang_path(J, umax, q0, w0, switch_times, u_first, tf, steps_per_tf=1000):
+    """``solvers.verify.replay_path`` as it ran before it was compiled (the reference)."""
+    from slew_env.core.dynamics import propagate
+    events = sorted((float(t), i) for i in range(3) for t in switch_times[i])
+    signs = np.array(u_first, dtype=float)
+    x = np.concatenate([q0, w0]).astype(float)
+    ts, xs = [np.zeros(1)], [x[None, :]]
+    t_prev = 0.0
+    h_nom = tf / steps_per_tf
+    for t_next, axis in events + [(tf, -1)]:
+        dt = t_next - t_prev
+        if dt > 0:
+            n = max(1, int(math.ceil(dt / h_nom)))
+            traj = propagate(x, umax * signs, J, dt, n)
+            ts.append(t_prev + np.linspace(0.0, dt, n + 1)[1:])
+            xs.append(traj[1:])
+            x = traj[-1]
+        if axis >= 0:
+            signs[axis] = -signs[axis]
+        t_prev = max(t_prev, t_next)
+    return np.concatenate(ts), np.vstack(xs)
+
+
+def test_the_compiled_bang_bang_replay_is_the_python_loop_bit_for_bit():
+    from solvers.verify import replay_path
+    rng = np.random.default_rng(5)
+    for k in range(40):
+        J = rng.uniform(0.2, 3.0, 3)
+        umax = rng.uniform(0.1, 2.0, 3)
+        q0 = rng.normal(size=4)
+        q0 /= np.linalg.norm(q0)
+        w0 = rng.normal(size=3) * (k % 2)
+        tf = float(rng.uniform(0.05, 5.0))
+        # any number of switches per axis, ties across axes, one at 0, and one past tf
+        sw = [np.sort(rng.uniform(0.0, tf, rng.integers(0, 5))) for _ in range(3)]
+        if k % 5 == 1 and sw[0].size and sw[1].size:
+            sw[1][0] = sw[0][0]
+        if k % 7 == 2:
+            sw[2] = np.concatenate([[0.0], sw[2]])
+        if k % 9 == 3:
+            sw[0] = np.concatenate([sw[0], [1.1 * tf]])
+        u_first = rng.choice([-1.0, 1.0], 3)
+        steps = int(rng.choice([7, 100, 1000]))
+        t, x = replay_path(J, umax, q0, w0, sw, u_first, tf, steps)
+        t0, x0 = _python_bang_bang_path(J, umax, q0, w0, sw, u_first, tf, steps)
+        assert np.array_equal(t, t0) and np.array_equal(x, x0, equal_nan=True)   # a coarse replay may blow up: alike
+    # no switches at all: one arc of constant torque
+    t, x = replay_path(np.ones(3), np.ones(3), np.array([1.0, 0, 0, 0]), np.zeros(3), [[], [], []], [1, 1, 1], 2.0, 10)
+    assert t.shape == (11,) and t[-1] == 2.0 and np.allclose(x[-1, 4:7], 2.0)

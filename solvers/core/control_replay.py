@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from slew_env.core.dynamics import state_rhs_scalar
+from slew_env.core.dynamics import rk4_step_inplace, state_rhs_scalar
 
 
 @njit(cache=True)
@@ -113,3 +113,47 @@ def replay_eigenaxis_profile(x0, t, rate, acc, a, c, J, substeps):
             _rk4_step(x, y, h, _eigen_torque(k, s, rate, acc, a, c), _eigen_torque(k, s + 0.5 * h, rate, acc, a, c),
                       _eigen_torque(k, s + h, rate, acc, a, c), J)
     return x
+
+
+@njit(cache=True)
+def replay_bang_bang_path(x0, umax, J, ev_t, ev_axis, signs0, tf, steps_per_tf):
+    """``(t, x)``: the environment's RK4 (``slew_env.core.dynamics``) under a bang-bang torque,
+    every step sampled, in one compiled call (``solvers.verify.replay_path``'s loop).
+
+    ``ev_t``/``ev_axis``: the switches sorted by instant, then axis; each arc between them
+    (and the last one, to ``tf``) takes ``max(1, ceil(dt / (tf / steps_per_tf)))`` equal steps,
+    the quaternion renormalised after each, as ``dynamics.propagate`` does (bit for bit); instants as
+    ``np.linspace`` gives them (the arc's end exactly).
+    """
+    n_ev = ev_t.shape[0]
+    h_nom = tf / steps_per_tf
+    # each arc's start and length (an arc that does not go forward takes no steps), then its steps
+    starts = np.empty(n_ev + 1)
+    lengths = np.empty(n_ev + 1)
+    steps = np.zeros(n_ev + 1, dtype=np.int64)
+    t_prev = 0.0
+    for k in range(n_ev + 1):
+        t_next = ev_t[k] if k < n_ev else tf
+        starts[k], lengths[k] = t_prev, t_next - t_prev
+        if lengths[k] > 0.0:
+            steps[k] = max(1, int(math.ceil(lengths[k] / h_nom)))
+        t_prev = max(t_prev, t_next)
+    ts = np.empty(1 + steps.sum())
+    xs = np.empty((ts.shape[0], 7))
+    ts[0] = 0.0
+    xs[0] = x0
+    x = x0.copy()
+    signs = signs0.copy()
+    i = 0
+    for k in range(n_ev + 1):
+        n, dt = steps[k], lengths[k]
+        u0, u1, u2 = umax[0] * signs[0], umax[1] * signs[1], umax[2] * signs[2]
+        for s in range(n):
+            # rk4_step then the renormalisation, as propagate does, without allocating
+            rk4_step_inplace(x, u0, u1, u2, J[0], J[1], J[2], dt / n)
+            i += 1
+            xs[i] = x
+            ts[i] = starts[k] + dt if s == n - 1 else starts[k] + (s + 1) * (dt / n)
+        if k < n_ev:
+            signs[ev_axis[k]] = -signs[ev_axis[k]]
+    return ts, xs
