@@ -22,7 +22,7 @@ import numpy as np
 
 from .attitude_bvp import NY
 from .core.attitude_flow import ext_rhs
-from .core.switch_sequence import sequence_flow
+from .core.switch_sequence import sequence_end, sequence_flow
 
 
 @dataclass
@@ -293,9 +293,6 @@ def structure_from_trajectory(t, S, graze=0.0):
     return Structure(signs0, axes, times)
 
 
-_E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
-
-
 def propagate_sequence(bvp, times, axes, signs0, T, y0, want_jac):
     """A bang-bang control with its switches at fixed instants (``times``, ``axes``, first signs
     ``signs0``), propagated from the augmented state ``y0`` over ``[0, T]``, or ``None`` if a
@@ -303,55 +300,16 @@ def propagate_sequence(bvp, times, axes, signs0, T, y0, want_jac):
     ``want_jac``, ``(y(T), r, J_r, D7, M, nfev)``: ``J_r`` the residual's Jacobian in
     ``[times, T]`` (exact: ``∂x(T)/∂t_k = Φ(T, t_k)(f⁻ - f⁺)``, accumulated backwards over the
     arcs' 7×7 transition matrices), ``D7 = ∂r/∂x(T)`` and ``M`` the state transition matrix over
-    ``[0, T]``."""
-    n = times.shape[0]
-    order = np.argsort(times, kind="stable")
-    signs = np.array(signs0, float)
-    y = y0.copy()
-    t = 0.0
-    mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
-    jumps = []          # f⁻ - f⁺ at each event, in time order
-    nfev = 0
-    # the events in time order, then the end of the last arc (axis -1). An instant at or after T
-    # is beyond the horizon (no flip); one before 0 flips at 0. Either way it does not move the
-    # end state to first order: its column of the Jacobian is zero.
-    for k in list(order) + [-1]:
-        raw = T if k < 0 else float(times[k])
-        tk = min(max(raw, 0.0), T)
-        if tk > t:
-            y, Phi, ok = bvp.arc(y, tk - t, signs, _E7 if want_jac else None)
-            nfev += 1
-            if not ok:
-                return None
-            if want_jac:
-                mats.append(Phi[:7, :7].copy())
-            t = tk
-        elif want_jac:
-            mats.append(np.eye(7))
-        if k < 0:
-            break
-        a = int(axes[k])
-        if raw >= T:
-            if want_jac:
-                jumps.append(np.zeros(7))
-            continue
-        if want_jac:
-            # f⁻ - f⁺ differs only in ω̇_a (as in ``switch_event``)
-            jump = np.zeros(7)
-            if raw > 0.0:
-                jump[4 + a] = 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
-            jumps.append(jump)
-        signs[a] = -signs[a]
+    ``[0, T]``. The arcs run in one compiled call (``core.switch_sequence.sequence_end``); a
+    time that is not finite fails like a propagation."""
+    y, dx, M_total, nfev, ok = sequence_end(
+        np.asarray(y0, dtype=float), np.ascontiguousarray(times, dtype=float), np.ascontiguousarray(axes, dtype=np.int64),
+        float(T), np.asarray(signs0, dtype=float), bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol,
+        bvp.pen, bool(want_jac))
+    if not ok:
+        return None
     r, D, _ = bvp.terminal(y, T)
     if not want_jac:
         return y, r, nfev
     D7 = D[:, :7]
-    dx = np.empty((7, n + 1))
-    G = np.eye(7)
-    # Φ(T, t_k) = M_last … M_{k+1}: accumulated backwards
-    for j in range(n - 1, -1, -1):
-        G = G @ mats[j + 1]
-        dx[:, order[j]] = G @ jumps[j]
-    dx[:, n] = ext_rhs(y, bvp.umax * signs, bvp.J)[:7]
-    M_total = G @ mats[0]
     return y, r, D7 @ dx, D7, M_total, nfev

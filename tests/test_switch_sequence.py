@@ -122,3 +122,78 @@ def test_bad_times_fail_cleanly_and_newton_still_converges():
                              Structure(np.asarray(sol.u_first, float), axes[o], times[o] * (1 + 1e-3)), T * 1.002)
     assert res.success and res.residual_norm < 1e-12
     assert res.T * bvp.tau == pytest.approx(sol.tf, rel=1e-10)
+
+
+def _python_propagate_sequence(bvp, times, axes, signs0, T, y0, want_jac):
+    """``solvers.switch_time.propagate_sequence`` as it ran before it was compiled (reference)."""
+    E7 = np.ascontiguousarray(np.eye(NY)[:, :7])
+    n = times.shape[0]
+    order = np.argsort(times, kind="stable")
+    signs = np.array(signs0, float)
+    y = y0.copy()
+    t = 0.0
+    mats = []           # transition matrix of each arc (arc k ends at event k; the last at T)
+    jumps = []          # f⁻ - f⁺ at each event, in time order
+    nfev = 0
+    # the events in time order, then the end of the last arc (axis -1). An instant at or after T
+    # is beyond the horizon (no flip); one before 0 flips at 0. Either way it does not move the
+    # end state to first order: its column of the Jacobian is zero.
+    for k in list(order) + [-1]:
+        raw = T if k < 0 else float(times[k])
+        tk = min(max(raw, 0.0), T)
+        if tk > t:
+            y, Phi, ok = bvp.arc(y, tk - t, signs, E7 if want_jac else None)
+            nfev += 1
+            if not ok:
+                return None
+            if want_jac:
+                mats.append(Phi[:7, :7].copy())
+            t = tk
+        elif want_jac:
+            mats.append(np.eye(7))
+        if k < 0:
+            break
+        a = int(axes[k])
+        if raw >= T:
+            if want_jac:
+                jumps.append(np.zeros(7))
+            continue
+        if want_jac:
+            # f⁻ - f⁺ differs only in ω̇_a (as in ``switch_event``)
+            jump = np.zeros(7)
+            if raw > 0.0:
+                jump[4 + a] = 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
+            jumps.append(jump)
+        signs[a] = -signs[a]
+    r, D, _ = bvp.terminal(y, T)
+    if not want_jac:
+        return y, r, nfev
+    D7 = D[:, :7]
+    dx = np.empty((7, n + 1))
+    G = np.eye(7)
+    # Φ(T, t_k) = M_last … M_{k+1}: accumulated backwards
+    for j in range(n - 1, -1, -1):
+        G = G @ mats[j + 1]
+        dx[:, order[j]] = G @ jumps[j]
+    dx[:, n] = ext_rhs(y, bvp.umax * signs, bvp.J)[:7]
+    M_total = G @ mats[0]
+    return y, r, D7 @ dx, D7, M_total, nfev
+
+
+def test_the_compiled_sequence_end_matches_the_python_loop():
+    from solvers.switch_time import propagate_sequence
+    from solvers.switch_time_opt import _start_state
+    rng = np.random.default_rng(8)
+    for k, (bvp, z, times, T, st) in enumerate(_cases(16, seed=21)):
+        times = times.copy()
+        if k % 4 == 3 and times.size:
+            times[-1] = -0.1                      # before 0: flips at 0
+        y0 = _start_state(bvp) if k % 2 else bvp.initial(z)[0]
+        for want_jac in (True, False):
+            new = propagate_sequence(bvp, times, st.axes, st.signs0, T, y0, want_jac)
+            old = _python_propagate_sequence(bvp, times, st.axes, st.signs0, T, y0, want_jac)
+            assert new[-1] == old[-1]                                       # arcs integrated
+            for a, b in zip(new[:-1], old[:-1]):
+                assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
+    bvp, z, times, T, st = next(_cases())
+    assert propagate_sequence(bvp, times, st.axes, st.signs0, float("nan"), bvp.initial(z)[0], True) is None

@@ -18,6 +18,21 @@ from .attitude_flow import FLOW_OK, NY, ext_rhs, flow
 
 
 @njit(cache=True)
+def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
+    """One arc of fixed ``signs`` over ``dt`` of ``[y, Φ]`` (``m`` sensitivity columns, row-major),
+    as ``AttitudeBVP.arc`` runs it: ``(Y(dt), ok)``, ``ok`` False if it fails or is not finite."""
+    Y, _, _, _, _, status = flow(Y0, dt, m, J, umax, mode, p, eps, signs, rtol, atol, min(0.05, dt), 200000, 0,
+                                 np.empty(0), np.empty((0, NY)), np.empty((0, 3)), np.empty(1),
+                                 np.empty(1, dtype=np.int64), pen, False, np.inf)
+    if status != FLOW_OK:
+        return Y, False
+    for i in range(Y.shape[0]):
+        if not np.isfinite(Y[i]):
+            return Y, False
+    return Y, True
+
+
+@njit(cache=True)
 def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
                   S_res, S_jac):
     """Arcs of ``y0`` (NY,) over ``[0, T]`` with switches of axes ``axes`` at ``times``.
@@ -42,11 +57,6 @@ def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, at
     for c in range(6):
         active[c] = c
     n_active = 6
-    no_t = np.empty(0)
-    no_Y = np.empty((0, NY))
-    no_s = np.empty((0, 3))
-    sw_t = np.empty(1)
-    sw_a = np.empty(1, dtype=np.int64)
     t_prev = 0.0
     for k in range(n + 1):
         t_next = T if k == n else times[order[k]]
@@ -58,13 +68,9 @@ def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, at
             for i in range(NY):
                 for c in range(m):
                     Y0[NY + i * m + c] = G[i, active[c]]
-            Y, _, _, _, _, status = flow(Y0, dt, m, J, umax, mode, p, eps, signs, rtol, atol, min(0.05, dt),
-                                         200000, 0, no_t, no_Y, no_s, sw_t, sw_a, pen, False, np.inf)
-            if status != FLOW_OK:
+            Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            if not ok:
                 return y, False
-            for i in range(Y.shape[0]):
-                if not np.isfinite(Y[i]):
-                    return y, False
             y = Y[:NY].copy()
             for i in range(NY):
                 for c in range(m):
@@ -91,3 +97,73 @@ def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, at
         for i in range(NY):
             G[i, nx - 1] += f[i]
     return y, True
+
+
+@njit(cache=True)
+def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
+    """The end of a bang-bang control with switches at fixed instants, and the end state's
+    derivatives in ``[times, T]`` (``solvers.switch_time.propagate_sequence``'s arcs in one
+    compiled call). An instant at or after ``T`` does not flip (beyond the horizon); one before
+    0 flips at 0; either way its derivative is zero.
+
+    Returns ``(y(T), dx, M, nfev, ok)``: with ``want_jac``, ``dx`` (7, n + 1) holds
+    ``∂x(T)/∂t_k = Φ(T, t_k)(f⁻ - f⁺)`` (switch ``k`` in the caller's order) and ``∂x(T)/∂T``,
+    accumulated backwards over the arcs' 7×7 transition matrices, and ``M`` is the transition
+    matrix over ``[0, T]``; without, both are zeros. ``ok`` is False if an arc fails.
+    """
+    n = times.shape[0]
+    m = 7 if want_jac else 0
+    dx = np.zeros((7, n + 1))
+    M = np.zeros((7, 7))
+    if not np.isfinite(T):
+        return y0.copy(), dx, M, 0, False
+    for j in range(n):
+        if not np.isfinite(times[j]):
+            return y0.copy(), dx, M, 0, False
+    order = np.argsort(times, kind="mergesort")
+    mats = np.zeros((n + 1, 7, 7))
+    jumps = np.zeros((n, 7))
+    signs = signs0.copy()
+    y = y0.copy()
+    t = 0.0
+    nfev = 0
+    for kk in range(n + 1):
+        raw = T if kk == n else times[order[kk]]
+        tk = min(max(raw, 0.0), T)
+        if tk > t:
+            Y0 = np.zeros(NY + NY * m)
+            Y0[:NY] = y
+            for c in range(m):
+                Y0[NY + c * m + c] = 1.0
+            Y, ok = _fixed_arc(Y0, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            nfev += 1
+            if not ok:
+                return y, dx, M, nfev, False
+            y = Y[:NY].copy()
+            for i in range(m):
+                for c in range(m):
+                    mats[kk, i, c] = Y[NY + i * m + c]
+            t = tk
+        elif want_jac:
+            for i in range(7):
+                mats[kk, i, i] = 1.0
+        if kk == n:
+            break
+        a = axes[order[kk]]
+        if raw >= T:
+            continue
+        if want_jac and raw > 0.0:
+            # f⁻ - f⁺ differs only in ω̇_a (as in ``solvers.switch_time.switch_event``)
+            jumps[kk, 4 + a] = 2.0 * signs[a] * umax[a] / J[a]
+        signs[a] = -signs[a]
+    if want_jac:
+        G = np.eye(7)
+        # Φ(T, t_k) = M_last … M_{k+1}: accumulated backwards
+        for j in range(n - 1, -1, -1):
+            G = G @ mats[j + 1]
+            dx[:, order[j]] = G @ jumps[j]
+        f = ext_rhs(y, umax * signs, J)
+        for i in range(7):
+            dx[i, n] = f[i]
+        M = G @ mats[0]
+    return y, dx, M, nfev, True
