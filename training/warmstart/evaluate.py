@@ -344,7 +344,7 @@ def markdown(s) -> str:
                   "against the fastest exact extremal any of them found."]
     if s["inference_s_median"] == s["inference_s_median"]:
         what = s.get("inference_measures", "canonical form + network")
-        lines += ["", f"Inference ({what}, numpy): median {1e6 * s['inference_s_median']:.1f} µs per problem."]
+        lines += ["", f"Inference ({what}; numba and numpy, no torch): median {1e6 * s['inference_s_median']:.1f} µs per problem."]
         if s.get("table_query_s_median") == s.get("table_query_s_median") and s.get("table_query_s_median"):
             lines[-1] += (f" The table's query for the nearest solutions, when reached: median "
                           f"{1e6 * s['table_query_s_median']:.1f} µs.")
