@@ -918,46 +918,27 @@ def _detour_guesses(sc: _Scaled, straight: _TrajGuess, clearance=math.radians(5.
 
 def _propagate_guess(sc: _Scaled, guess: Guess, n=400):
     """A ``solvers.Guess`` as a trajectory: bang-bang from its switch times, else the
-    extremal of its costates (PMP control law), by fixed-step RK4."""
+    extremal of its costates (PMP control law), by fixed-step RK4 (compiled:
+    ``core.control_replay.guess_path``)."""
     from .core import attitude_flow as af
+    from .core.control_replay import guess_path
     T = guess.tf / sc.tau
-    prob = sc.prob
     t = np.linspace(0.0, T, n + 1)
-    h = T / n
-    if guess.switch_times is not None and guess.u_first is not None:
-        sw = [np.asarray(s) / sc.tau for s in guess.switch_times]
-        u0 = np.where(guess.u_first == 0, 1.0, guess.u_first)
-
-        def uf(tt, y):
-            flips = np.array([np.searchsorted(sw[i], tt, side="right") for i in range(3)])
-            return sc.U * u0 * np.where(flips % 2 == 0, 1.0, -1.0)
+    by_switches = guess.switch_times is not None and guess.u_first is not None
+    if by_switches:
+        sw = [np.asarray(s, dtype=float).ravel() / sc.tau for s in guess.switch_times]
+        sw_t = np.concatenate(sw) if sum(x.size for x in sw) else np.zeros(0)
+        sw_axis = np.concatenate([np.full(x.size, i, dtype=np.int64) for i, x in enumerate(sw)])
+        u0 = np.where(np.asarray(guess.u_first, dtype=float) == 0, 1.0, np.asarray(guess.u_first, dtype=float))
         src = "guess(switch times)"
     else:
-        mode = af.MODE_BANG if math.isinf(sc.p) else af.MODE_PNORM
-        pp = 0.0 if math.isinf(sc.p) else sc.p
-
-        def uf(tt, y):
-            if mode == af.MODE_BANG:
-                S = y[11:14] / sc.J
-                return -sc.U * np.where(S >= 0, 1.0, -1.0)
-            return af.control(y, sc.J, sc.U, mode, pp, 1e-2, np.ones(3))[0]
+        sw_t, sw_axis, u0 = np.zeros(0), np.zeros(0, dtype=np.int64), np.ones(3)
         src = "guess(costates)"
-    y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2])
-    Y = np.empty((n + 1, 14))
-    Uu = np.empty((n + 1, 3))
-    Y[0] = y
-    for k in range(n):
-        tt = t[k]
-        uk = uf(tt, y)
-        Uu[k] = uk
-        k1 = af.ext_rhs(y, uk, sc.J)
-        k2 = af.ext_rhs(y + 0.5 * h * k1, uf(tt + 0.5 * h, y + 0.5 * h * k1), sc.J)
-        k3 = af.ext_rhs(y + 0.5 * h * k2, uf(tt + 0.5 * h, y + 0.5 * h * k2), sc.J)
-        k4 = af.ext_rhs(y + h * k3, uf(tt + h, y + h * k3), sc.J)
-        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        y[0:4] /= np.linalg.norm(y[0:4])
-        Y[k + 1] = y
-    Uu[n] = uf(t[n], y)
+    mode = af.MODE_BANG if math.isinf(sc.p) else af.MODE_PNORM
+    pp = 0.0 if math.isinf(sc.p) else float(sc.p)
+    y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2]).astype(float)
+    Y, Uu = guess_path(y, t, np.asarray(sc.J, dtype=float), np.asarray(sc.U, dtype=float), mode, pp, sw_t,
+                       sw_axis.astype(np.int64), u0.astype(float), bool(by_switches))
     return _TrajGuess(T, t, Y[:, 0:4], Y[:, 4:7], Uu, src)
 
 

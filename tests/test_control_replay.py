@@ -119,3 +119,72 @@ def test_the_compiled_bang_bang_replay_is_the_python_loop_bit_for_bit():
     # no switches at all: one arc of constant torque
     t, x = replay_path(np.ones(3), np.ones(3), np.array([1.0, 0, 0, 0]), np.zeros(3), [[], [], []], [1, 1, 1], 2.0, 10)
     assert t.shape == (11,) and t[-1] == 2.0 and np.allclose(x[-1, 4:7], 2.0)
+
+
+def _python_propagate_guess(sc, guess, n=400):
+    """``solvers.collocation._propagate_guess`` as it ran before it was compiled (reference)."""
+    from solvers.core import attitude_flow as af
+    T = guess.tf / sc.tau
+    prob = sc.prob
+    t = np.linspace(0.0, T, n + 1)
+    h = T / n
+    if guess.switch_times is not None and guess.u_first is not None:
+        sw = [np.asarray(s) / sc.tau for s in guess.switch_times]
+        u0 = np.where(guess.u_first == 0, 1.0, guess.u_first)
+
+        def uf(tt, y):
+            flips = np.array([np.searchsorted(sw[i], tt, side="right") for i in range(3)])
+            return sc.U * u0 * np.where(flips % 2 == 0, 1.0, -1.0)
+        src = "guess(switch times)"
+    else:
+        mode = af.MODE_BANG if math.isinf(sc.p) else af.MODE_PNORM
+        pp = 0.0 if math.isinf(sc.p) else sc.p
+
+        def uf(tt, y):
+            if mode == af.MODE_BANG:
+                S = y[11:14] / sc.J
+                return -sc.U * np.where(S >= 0, 1.0, -1.0)
+            return af.control(y, sc.J, sc.U, mode, pp, 1e-2, np.ones(3))[0]
+        src = "guess(costates)"
+    y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2])
+    Y = np.empty((n + 1, 14))
+    Uu = np.empty((n + 1, 3))
+    Y[0] = y
+    for k in range(n):
+        tt = t[k]
+        uk = uf(tt, y)
+        Uu[k] = uk
+        k1 = af.ext_rhs(y, uk, sc.J)
+        k2 = af.ext_rhs(y + 0.5 * h * k1, uf(tt + 0.5 * h, y + 0.5 * h * k1), sc.J)
+        k3 = af.ext_rhs(y + 0.5 * h * k2, uf(tt + 0.5 * h, y + 0.5 * h * k2), sc.J)
+        k4 = af.ext_rhs(y + h * k3, uf(tt + h, y + h * k3), sc.J)
+        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        y[0:4] /= np.linalg.norm(y[0:4])
+        Y[k + 1] = y
+    Uu[n] = uf(t[n], y)
+    return T, t, Y, Uu
+
+
+@pytest.mark.parametrize("p_norm", [np.inf, 2.0, 3.0])
+def test_the_compiled_guess_path_is_the_python_loop(p_norm):
+    from slew_env import SlewProblem
+    from slew_env.core import qfrom_uniform
+    from solvers import Guess
+    from solvers.collocation import _propagate_guess, _Scaled
+    rng = np.random.default_rng(12)
+    for k in range(6):
+        prob = SlewProblem(rng.uniform(0.3, 1.0, 3) * 7.0, torque_max=rng.uniform(0.2, 2.0, 3), torque_norm=p_norm,
+                           q0=qfrom_uniform(*rng.random(3)), qf=qfrom_uniform(*rng.random(3)))
+        sc = _Scaled.of(prob)
+        c0 = rng.normal(size=7)
+        tf = float(rng.uniform(1.0, 6.0)) * sc.tau
+        if k % 2 and math.isinf(p_norm):
+            sw = [np.sort(rng.uniform(0, tf, rng.integers(0, 4))) for _ in range(3)]
+            g = Guess(c0, tf, sw, np.array(rng.choice([-1.0, 1.0], 3)))
+        else:
+            g = Guess(c0, tf)
+        new = _propagate_guess(sc, g, n=int(rng.choice([7, 400])))
+        T, t, Y, Uu = _python_propagate_guess(sc, g, n=new.t.size - 1)
+        assert new.T == T and np.array_equal(new.t, t)
+        assert np.allclose(new.q, Y[:, 0:4], rtol=0, atol=1e-12) and np.allclose(new.w, Y[:, 4:7], rtol=0, atol=1e-11)
+        assert np.allclose(new.u, Uu, rtol=0, atol=1e-12)

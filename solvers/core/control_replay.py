@@ -15,6 +15,8 @@ from numba import njit
 
 from slew_env.core.dynamics import rk4_step_inplace, state_rhs_scalar
 
+from .attitude_flow import MODE_BANG, control, ext_rhs
+
 
 @njit(cache=True)
 def quadratic_control(s, Uk, Um, Uk1, Ulim, p):
@@ -157,3 +159,60 @@ def replay_bang_bang_path(x0, umax, J, ev_t, ev_axis, signs0, tf, steps_per_tf):
         if k < n_ev:
             signs[ev_axis[k]] = -signs[ev_axis[k]]
     return ts, xs
+
+
+@njit(cache=True)
+def _guess_torque(tt, y, J, U, mode, p, sw_t, sw_axis, u0, by_switches, out):
+    """A guess's torque at ``tt``: bang-bang from its switch instants (``u0`` the first signs;
+    an axis flips at each of its instants at or before ``tt``), else the control law of its
+    costates (bang: ``-U sign(S)`` with ``S ≥ 0`` taken as positive; p-norm: the closed form)."""
+    if by_switches:
+        for i in range(3):
+            flips = 0
+            for k in range(sw_t.shape[0]):
+                if sw_axis[k] == i and sw_t[k] <= tt:
+                    flips += 1
+            out[i] = U[i] * u0[i] * (1.0 if flips % 2 == 0 else -1.0)
+    elif mode == MODE_BANG:
+        for i in range(3):
+            out[i] = -U[i] * (1.0 if y[11 + i] / J[i] >= 0.0 else -1.0)
+    else:
+        u, _ = control(y, J, U, mode, p, 1e-2, np.ones(3))
+        for i in range(3):
+            out[i] = u[i]
+
+
+@njit(cache=True)
+def guess_path(y0, t, J, U, mode, p, sw_t, sw_axis, u0, by_switches):
+    """``(Y, Uu)``: the augmented state ``y0`` (14,) under a guess's torque (``_guess_torque``)
+    by classical RK4 on the even grid ``t``, the quaternion renormalised after every step, and
+    the torque at every grid point (the collocation NLP's starting trajectory)."""
+    n = t.shape[0] - 1
+    h = t[1] - t[0] if n > 0 else 0.0
+    Y = np.empty((n + 1, 14))
+    Uu = np.empty((n + 1, 3))
+    y = y0.copy()
+    Y[0] = y
+    u = np.empty(3)
+    for k in range(n):
+        tt = t[k]
+        _guess_torque(tt, y, J, U, mode, p, sw_t, sw_axis, u0, by_switches, u)
+        Uu[k] = u
+        k1 = ext_rhs(y, u, J)
+        y2 = y + 0.5 * h * k1
+        _guess_torque(tt + 0.5 * h, y2, J, U, mode, p, sw_t, sw_axis, u0, by_switches, u)
+        k2 = ext_rhs(y2, u, J)
+        y3 = y + 0.5 * h * k2
+        _guess_torque(tt + 0.5 * h, y3, J, U, mode, p, sw_t, sw_axis, u0, by_switches, u)
+        k3 = ext_rhs(y3, u, J)
+        y4 = y + h * k3
+        _guess_torque(tt + h, y4, J, U, mode, p, sw_t, sw_axis, u0, by_switches, u)
+        k4 = ext_rhs(y4, u, J)
+        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        nq = np.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2 + y[3] ** 2)
+        for i in range(4):
+            y[i] /= nq
+        Y[k + 1] = y
+    _guess_torque(t[n], y, J, U, mode, p, sw_t, sw_axis, u0, by_switches, u)
+    Uu[n] = u
+    return Y, Uu
