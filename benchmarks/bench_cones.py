@@ -64,7 +64,7 @@ def main(argv=None):
     print(f"pointing-cones benchmark{' (cones removed)' if args.no_cones else ''}: {args.n} problems (seed {args.seed}), "
           f"warm start {args.warm_start} (auto: the learned guess, first or as a challenger, gave the answer on "
           f"{won}/{len(probs)}), cones per problem "
-          f"{dict(zip(*np.unique(ncones, return_counts=True)))}")
+          f"{ {int(c): int(n) for c, n in zip(*np.unique(ncones, return_counts=True))} }")
     col_t = np.array([r[1] for r in rows["collocation"]])
     for m in METHODS:
         r = rows[m]
