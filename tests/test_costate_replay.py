@@ -18,7 +18,8 @@ from solvers.verify import verify
 def _setup(p_norm, J, seed=4):
     rng = np.random.default_rng(seed)
     prob = SlewProblem(J, torque_norm=p_norm, q0=qfrom_uniform(*rng.random(3)), qf=qfrom_uniform(*rng.random(3)))
-    sol = solve(prob, method="indirect", warm_start=None)
+    # a generous budget: on a cold numba cache compiling takes most of the default 20 s
+    sol = solve(prob, method="indirect", warm_start=None, time_budget=120.0)
     assert sol.success
     bvp = AttitudeBVP(prob)
     bvp.set_mode("pnorm", p=p_norm)
@@ -64,3 +65,17 @@ def test_a_wrong_costate_fails_the_check_and_a_step_cap_is_reported():
     y0, _ = bvp.initial(z)
     _, status, steps = replay_pnorm_end(y0, T, bvp.J, bvp.umax, 2.0, 1e-11, 1e-12, 5)
     assert status == REPLAY_MAX_STEPS and steps == 5
+
+
+def test_a_failed_replay_fails_the_check(monkeypatch):
+    import solvers.verify as V
+    from solvers.core.costate_replay import REPLAY_NONFINITE
+    prob, sol, bvp, z, T = _setup(2.0, [0.6, 0.9, 1.0], seed=2)
+    for bad_T in (float("nan"), 0.0, -1.0):
+        _, status, steps = replay_pnorm_end(bvp.initial(z)[0], bad_T, bvp.J, bvp.umax, 2.0, 1e-11, 1e-12, 10)
+        assert status == REPLAY_NONFINITE and steps == 0
+    real = V.replay_pnorm_end
+    monkeypatch.setattr(V, "replay_pnorm_end", lambda y0, *a: (real(y0, *a)[0], REPLAY_NONFINITE, 3))
+    ok, checks, text, _ = verify(bvp, z, T)
+    assert not ok and not checks["replay"]["passed"] and checks["replay"]["value"] == math.inf
+    assert "replay" in text

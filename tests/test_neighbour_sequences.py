@@ -65,7 +65,7 @@ def test_the_faster_verified_answer_is_kept_and_the_work_counted(p575):
     assert ex.exact and ex.tf == pytest.approx(ref.tf, rel=1e-9)
 
     class Slower:   # a verified answer of the other route, slower
-        success, tf, method, nit, nfev, message = True, ref.tf * 1.01, "collocation", 7, 9, ""
+        success, tf, method, nit, nfev, message, exact = True, ref.tf * 1.01, "collocation", 7, 9, "", False
 
     nit = ex.nit
     kept = _faster_verified(Slower(), ex)
@@ -74,8 +74,13 @@ def test_the_faster_verified_answer_is_kept_and_the_work_counted(p575):
     other.tf = ref.tf            # a tie keeps the route's answer
     assert _faster_verified(other, ex) is other
 
+    class Exact(Slower):   # a certified extremal within 1e-6 of a bang-bang slew keeps its place
+        tf, method, exact = ref.tf * (1 + 5e-7), "indirect", True
+
+    assert isinstance(_faster_verified(Exact(), ex), Exact)
+
     class Failed:
-        success, tf, method, nit, nfev, message = False, float("nan"), "indirect", 1, 1, "no candidate converged"
+        success, tf, method, nit, nfev, message, exact = False, float("nan"), "indirect", 1, 1, "no candidate converged", False
 
     assert _faster_verified(Failed(), ex) is ex and "no verified answer" in ex.route
 
@@ -101,3 +106,35 @@ def test_the_vote_reader():
     assert _table_votes_bang_bang({"singular_table": {"share": 0.0, "vote": 0.6}})
     assert not _table_votes_bang_bang({"singular_table": {"share": 0.2, "vote": 0.6}})
     assert not _table_votes_bang_bang({"singular_table": {"share": 0.8, "vote": 0.6}})
+
+
+def test_an_extremal_slower_than_an_earlier_sequences_slew_does_not_win(monkeypatch, p575):
+    # the first sequence gives a verified bang-bang slew (no extremal from it), the second a
+    # slower slew whose extremal is still slower than the first slew: the first slew is the
+    # answer (for solve() to compare with the collocation route), not that extremal
+    import solvers.api as api
+    import solvers.switch_time_opt as sto
+    p, ref = p575
+
+    class Fake:
+        def __init__(self, tf, exact):
+            self.tf, self.exact, self.success = tf, exact, True
+            self.nit = self.nfev = 1
+            self.route, self.message, self.method = "fake", "", "indirect" if exact else "switch-time"
+            self.verification, self.baseline_tf, self.wall_time = {}, float("nan"), 0.0
+
+    import itertools
+    tfs = itertools.chain([ref.tf, ref.tf * 1.05], itertools.repeat(ref.tf * 1.06))
+    monkeypatch.setattr(sto, "bang_bang_from_sequences",
+                        lambda *a, **k: (Fake(next(tfs), False), object(), (1, 1)))
+    calls = []
+
+    def exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix):
+        calls.append(bang.tf)
+        return None if len(calls) == 1 else Fake(ref.tf * 1.04, True)
+
+    monkeypatch.setattr(api, "_exact_from_kkt", exact_from_kkt)
+    info = {}
+    ans, _ = _neighbour_sequences_route(p, {}, info)
+    assert len(calls) >= 2 and ans.tf == ref.tf and not ans.exact
+    assert info["neighbour_sequences"]["exact"] is False

@@ -188,6 +188,8 @@ def test_the_compiled_sequence_end_matches_the_python_loop():
         times = times.copy()
         if k % 4 == 3 and times.size:
             times[-1] = -0.1                      # before 0: flips at 0
+        if k % 4 == 1 and times.size >= 2:
+            times[0], times[-1] = 0.0, T          # exactly at 0 (no jump) and at T (no flip)
         y0 = _start_state(bvp) if k % 2 else bvp.initial(z)[0]
         for want_jac in (True, False):
             new = propagate_sequence(bvp, times, st.axes, st.signs0, T, y0, want_jac)

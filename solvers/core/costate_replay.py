@@ -36,8 +36,11 @@ def _pnorm_rhs(y, J, umax, p):
 @njit(cache=True)
 def replay_pnorm_end(y0, T, J, umax, p, rtol, atol, max_steps):
     """``(y(T), status, steps)``: the augmented state ``y0`` (NY,) under the p-norm control law
-    over ``[0, T]`` (nondimensional), adaptive Dormand–Prince 5(4) at ``rtol``/``atol``."""
+    over ``[0, T]`` (nondimensional), adaptive Dormand–Prince 5(4) at ``rtol``/``atol``; a ``T``
+    that is not finite and positive fails (``REPLAY_NONFINITE``) without a step."""
     y = y0.copy()
+    if not (T > 0.0 and math.isfinite(T)):
+        return y, REPLAY_NONFINITE, 0
     t = 0.0
     f = _pnorm_rhs(y, J, umax, p)
     K = np.empty((_NS + 1, NY))
