@@ -104,12 +104,12 @@ SINGULAR_UNCERTAIN_BUDGET = 0.6
 # solutions, their switch times optimised, then the exact solver from the KKT costates of each
 # (``_neighbour_sequences_route``)
 NEIGHBOUR_SEQUENCES = 8
+NEIGHBOUR_SEQUENCE_BUDGET = 0.6
+NEIGHBOUR_KKT_BUDGET = 0.1
 # s: auto's indirect multi-start before collocation for a p-norm bound with p ≤ 2
 # (``_pnorm_indirect_first``; it takes 0.1-0.4 s there, the collocation route 0.4-16 s)
 PNORM_INDIRECT_BUDGET = 2.0
 PNORM_INDIRECT_MIN_INERTIA_RATIO = 0.3   # the measured range (``_pnorm_indirect_first``)
-NEIGHBOUR_SEQUENCE_BUDGET = 0.6
-NEIGHBOUR_KKT_BUDGET = 0.1
 
 
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
@@ -488,18 +488,20 @@ def _singular_table_route(prob, options, info, col_opts=None, exact_check=True):
     rec["uncertain"] = uncertain
     from .switch_time_opt import bang_bang_from_sequences
     budget = float(options.get("time_budget", 20.0))
-    bang, kkt_guess, spent = bang_bang_from_sequences(
-        prob, sequences, time_budget=min(SINGULAR_UNCERTAIN_BUDGET if uncertain else SINGULAR_TABLE_BUDGET, budget),
-        tols=options.get("tols"), tf_rel_tol=table.tf_rel_tol, source="the singular table's neighbour",
-        max_iter=SINGULAR_UNCERTAIN_ITERATIONS if uncertain else SINGULAR_TABLE_ITERATIONS)
+
+    def optimise(max_iter, time_budget):
+        return bang_bang_from_sequences(prob, sequences, time_budget=time_budget, tols=options.get("tols"),
+                                        tf_rel_tol=table.tf_rel_tol, source="the singular table's neighbour",
+                                        max_iter=max_iter)
+
+    bang, kkt_guess, spent = optimise(SINGULAR_UNCERTAIN_ITERATIONS if uncertain else SINGULAR_TABLE_ITERATIONS,
+                                      min(SINGULAR_UNCERTAIN_BUDGET if uncertain else SINGULAR_TABLE_BUDGET, budget))
     if bang is None and not uncertain:
         # none verified after 10 iterations a sequence (a long singular arc can need more: held-out
         # problem 790, J = I over 131°, verifies at 40): the uncertain tier's iterations, once
         left = min(SINGULAR_UNCERTAIN_BUDGET, budget - (time.perf_counter() - t0))
         if left > 0.05:
-            bang, kkt_guess, again = bang_bang_from_sequences(
-                prob, sequences, time_budget=left, tols=options.get("tols"), tf_rel_tol=table.tf_rel_tol,
-                source="the singular table's neighbour", max_iter=SINGULAR_UNCERTAIN_ITERATIONS)
+            bang, kkt_guess, again = optimise(SINGULAR_UNCERTAIN_ITERATIONS, left)
             if bang is not None:     # the answer counts both passes' work
                 bang.nit += spent[0]
                 bang.nfev += spent[1]
@@ -509,14 +511,10 @@ def _singular_table_route(prob, options, info, col_opts=None, exact_check=True):
     if bang is None:
         return None, spent
     # faster than the eigenaxis slew, or no answer here (the collocation route runs instead)
-    baseline, eig = _eigenaxis_unless_faster(prob, bang.tf)
+    faster = _faster_than_eigenaxis(prob, bang)
     rec["time_s"] = time.perf_counter() - t0
-    if eig is not None:
-        if not (eig.success and bang.tf < eig.tf):
-            return None, spent
-        baseline = eig.tf
-    bang.baseline_tf = baseline
-    bang.verification["eigenaxis_baseline"] = make_check(bang.tf / baseline - 1.0, 0.0, True)
+    if not faster:
+        return None, spent
     prefix = f"singular table ({share:.0%} of the {table.k} nearest problems singular)"
     ex = _exact_from_kkt(prob, bang, kkt_guess, options,
                          min(SINGULAR_KKT_BUDGET, budget - (time.perf_counter() - t0)), prefix)
@@ -539,6 +537,20 @@ def _singular_table_route(prob, options, info, col_opts=None, exact_check=True):
     bang.wall_time = time.perf_counter() - t0
     rec.update(used=True, time_s=bang.wall_time)
     return bang, (0, 0)
+
+
+def _faster_than_eigenaxis(prob, answer) -> bool:
+    """Whether a bang-bang ``answer`` of a rest-to-rest full-attitude problem is faster than its
+    eigenaxis slew (``_eigenaxis_unless_faster``: the grid time, or the slew itself when near it);
+    if so its ``baseline_tf`` and ``eigenaxis_baseline`` check are set."""
+    baseline, eig = _eigenaxis_unless_faster(prob, answer.tf)
+    if eig is not None:
+        if not (eig.success and answer.tf < eig.tf):
+            return False
+        baseline = eig.tf
+    answer.baseline_tf = baseline
+    answer.verification["eigenaxis_baseline"] = make_check(answer.tf / baseline - 1.0, 0.0, True)
+    return True
 
 
 def _neighbour_sequences_route(prob, options, info) -> Tuple[Optional[SlewSolution], Tuple[int, int]]:
@@ -599,14 +611,9 @@ def _neighbour_sequences_route(prob, options, info) -> Tuple[Optional[SlewSoluti
     rec.update(tried=tried, exact=False, time_s=time.perf_counter() - t0)
     if best is None:
         return None, (nit, nfev)
-    baseline, eig = _eigenaxis_unless_faster(prob, best.tf)
-    if eig is not None:
-        if not (eig.success and best.tf < eig.tf):
-            rec["rejected"] = "not faster than the eigenaxis slew"
-            return None, (nit, nfev)
-        baseline = eig.tf
-    best.baseline_tf = baseline
-    best.verification["eigenaxis_baseline"] = make_check(best.tf / baseline - 1.0, 0.0, True)
+    if not _faster_than_eigenaxis(prob, best):
+        rec["rejected"] = "not faster than the eigenaxis slew"
+        return None, (nit, nfev)
     best.route = f"the nearest tabled solutions' sequences ({tried} tried) → {best.route}"
     best.nit, best.nfev = nit, nfev
     best.wall_time = time.perf_counter() - t0

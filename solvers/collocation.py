@@ -929,7 +929,8 @@ def _propagate_guess(sc: _Scaled, guess: Guess, n=400):
         sw = [np.asarray(s, dtype=float).ravel() / sc.tau for s in guess.switch_times]
         sw_t = np.concatenate(sw) if sum(x.size for x in sw) else np.zeros(0)
         sw_axis = np.concatenate([np.full(x.size, i, dtype=np.int64) for i, x in enumerate(sw)])
-        u0 = np.where(np.asarray(guess.u_first, dtype=float) == 0, 1.0, np.asarray(guess.u_first, dtype=float))
+        u_first = np.asarray(guess.u_first, dtype=float)
+        u0 = np.where(u_first == 0, 1.0, u_first)
         src = "guess(switch times)"
     else:
         sw_t, sw_axis, u0 = np.zeros(0), np.zeros(0, dtype=np.int64), np.ones(3)
@@ -938,7 +939,7 @@ def _propagate_guess(sc: _Scaled, guess: Guess, n=400):
     pp = 0.0 if math.isinf(sc.p) else float(sc.p)
     y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2]).astype(float)
     Y, Uu = guess_path(y, t, np.asarray(sc.J, dtype=float), np.asarray(sc.U, dtype=float), mode, pp, sw_t,
-                       sw_axis.astype(np.int64), u0.astype(float), bool(by_switches))
+                       sw_axis, u0, bool(by_switches))
     return _TrajGuess(T, t, Y[:, 0:4], Y[:, 4:7], Uu, src)
 
 

@@ -33,6 +33,17 @@ def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
 
 
 @njit(cache=True)
+def _finite_times(times, T):
+    """Whether ``T`` and every switch instant are finite (an iterate may not be)."""
+    if not np.isfinite(T):
+        return False
+    for j in range(times.shape[0]):
+        if not np.isfinite(times[j]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
                   S_res, S_jac):
     """Arcs of ``y0`` (NY,) over ``[0, T]`` with switches of axes ``axes`` at ``times``.
@@ -47,11 +58,8 @@ def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, at
     nx = 6 + n + 1
     y = y0.copy()
     signs = signs0.copy()
-    if not np.isfinite(T):
+    if not _finite_times(times, T):
         return y, False
-    for j in range(n):
-        if not np.isfinite(times[j]):
-            return y, False
     order = np.argsort(times, kind="mergesort")      # stable, as np.argsort(kind="stable")
     active = np.empty(nx, dtype=np.int64)
     for c in range(6):
@@ -115,11 +123,8 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
     m = 7 if want_jac else 0
     dx = np.zeros((7, n + 1))
     M = np.zeros((7, 7))
-    if not np.isfinite(T):
+    if not _finite_times(times, T):
         return y0.copy(), dx, M, 0, False
-    for j in range(n):
-        if not np.isfinite(times[j]):
-            return y0.copy(), dx, M, 0, False
     order = np.argsort(times, kind="mergesort")
     mats = np.zeros((n + 1, 7, 7))
     jumps = np.zeros((n, 7))
