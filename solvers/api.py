@@ -984,7 +984,10 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             tried_guess.wall_time = spent()
             return tried_guess
     from .collocation import solve_collocation
-    col = solve_collocation(prob, **dict({"time_budget": max(1.0, budget - spent())}, **col_opts))
+    # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
+    # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
+    col = solve_collocation(prob, **dict({"time_budget": max(1.0, budget - spent()), "defer_tf_tol": not indirect_ok},
+                                         **col_opts))
     if not indirect_ok:
         ref = _refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
         if ref is not None:
@@ -1000,6 +1003,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             if free is not None:
                 free.wall_time = spent()
                 return free
+        settle_tf_tol(col, budget - spent())
         col.route = f"auto: collocation ({col.route})"
         col.wall_time = spent()
         return col
@@ -1107,8 +1111,11 @@ def _refine_collocation(target, col, options, max_candidates, budget):
     opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=1, time_budget=budget,
                 model_guess=True)
     ref = _solve_indirect(target, "indirect", g, **opts)
-    col_rel = max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
-    accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * col_rel))
+    accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * _rel_tol(col)))
+    if ref.success and not accepted and col._tf_tol_pending is not None:
+        # slower than the floor allows: the deferred tf_tol may allow it
+        settle_tf_tol(col, budget)
+        accepted = bool(ref.tf <= col.tf * (1.0 + 2.0 * _rel_tol(col)))
     if accepted:
         ref.nit += col.nit
         ref.nfev += col.nfev
@@ -1184,12 +1191,33 @@ def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=F
     return free
 
 
+def settle_tf_tol(sol, budget) -> None:
+    """``collocation.settle_tf_tol`` when a measurement is pending (casadi imported only then)."""
+    if sol._tf_tol_pending is not None:
+        from .collocation import settle_tf_tol as settle
+        settle(sol, budget)
+
+
+def _rel_tol(col) -> float:
+    """The relative tolerance a refinement of ``col`` may be slower by (each side): its
+    ``tf_tol`` relative, at least 1e-3 (NaN, not measured or deferred: 1e-3)."""
+    return max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
+
+
 def _refine_touching_cones(prob, col, options) -> SlewSolution:
     """The exact extremal whose path touches cones at isolated instants (costate jumps there,
     ``solvers.cone_touch``), from a collocation answer; ``success=False`` if there is none
     near it (a boundary arc, or Newton fails), or if it is slower than collocation's."""
     from .cone_touch import solve_touch
     sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
+    slower = sol.verification.get("not_slower_than_seed", {})
+    if not sol.success and col._tf_tol_pending is not None and not slower.get("passed", True):
+        # slower than the 1e-3 floor allows: the deferred tf_tol may allow more, and then the
+        # touch extremal is solved again against it
+        rel = _rel_tol(col)
+        settle_tf_tol(col, TOUCH_BUDGET)
+        if _rel_tol(col) > rel:
+            sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
     sol.nit += col.nit
     sol.nfev += col.nfev
     return sol
@@ -1207,7 +1235,8 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     segments = int(options.get("segments", SEGMENTS))
     if segments < 2:
         raise ValueError(f"segments: the cone penalty route uses multiple shooting, needs ≥ 2, got {segments}")
-    col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget)}, **col_opts))
+    col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget), "defer_tf_tol": True},
+                                                      **col_opts))
     if not col.success:
         free = _clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
                                     exact_only=True, label="indirect with cones")
@@ -1228,6 +1257,7 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
         touch.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {touch.route}"
         touch.wall_time = time.perf_counter() - t0
         return touch
+    settle_tf_tol(col, budget - (time.perf_counter() - t0))   # the penalty route's tf_tol builds on it
     sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
                           time_budget=max(1.0, budget - (time.perf_counter() - t0)))
     sol.nit += col.nit + touch.nit

@@ -1372,11 +1372,26 @@ def _mesh_limited(sol) -> bool:
     return sol.status == STATUS_VERIFICATION_FAILED and bool(failed) and failed <= _MESH_CHECKS
 
 
+def settle_tf_tol(sol, budget: float = 5.0):
+    """Run the ``N / 2`` comparison solve that ``defer_tf_tol`` skipped and set ``sol.tf_tol``
+    (its work added to ``nit``, ``nfev`` and ``wall_time``); nothing if none is pending."""
+    pending = getattr(sol, "_tf_tol_pending", None)
+    if pending is None:
+        return sol
+    t0 = time.perf_counter()
+    sol._tf_tol_pending = None
+    sol.tf_tol, n1, n2 = pending(float(budget))   # (no time left: the replay's estimate)
+    sol.nit += n1
+    sol.nfev += n2
+    sol.wall_time += time.perf_counter() - t0
+    return sol
+
+
 def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcription: str = "hermite-simpson",
                       guess=None, tol: float = 1e-8, max_iter: int = 3000, time_budget: float = 60.0,
                       verbose: bool = False, n_starts: Optional[int] = None, seed: int = 0,
                       coarse: bool = True, mesh=None, tols: Optional[dict] = None,
-                      extra_starts=()) -> SlewSolution:
+                      extra_starts=(), defer_tf_tol: bool = False) -> SlewSolution:
     """Time-optimal slew of ``problem`` by Hermite–Simpson direct collocation and IPOPT.
 
     Parameters
@@ -1427,6 +1442,12 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         costates) and solved with the others on the coarse grid; one whose propagation fails or
         is not finite is skipped. ``auto`` gives the nearest solutions of the shipped
         pointing-cones table here (``CONE_NEIGHBOUR_STARTS``).
+    defer_tf_tol : bool
+        With cones, skip the ``N / 2`` solve that measures ``tf_tol`` (about a fifth of the
+        call's time): the answer's ``tf_tol`` is NaN until ``settle_tf_tol(answer)`` runs that
+        solve. For a caller that usually replaces the answer by an exact extremal (``auto``'s
+        refinements, whose tolerance on ``tf_tol`` has a floor of 1e-3 relative) and settles it
+        only when it needs the value or returns the answer.
 
     Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
     the fields, the checks and the statuses.
@@ -1440,7 +1461,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
               tols=tols)
     evidence = {}
     sol = _solve_collocation_mesh(problem, n_intervals=n_intervals, guess=guess, time_budget=time_budget,
-                                  n_starts=n_starts, mesh=mesh, evidence=evidence, extra_starts=extra_starts, **kw)
+                                  n_starts=n_starts, mesh=mesh, evidence=evidence, extra_starts=extra_starts,
+                                  defer_tf_tol=defer_tf_tol, **kw)
     if n_intervals is not None or mesh is not None or not _mesh_limited(sol):
         return sol
     # the default mesh is too coarse for this problem (fast axes of a very unequal inertia,
@@ -1478,7 +1500,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
 
 
 def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, max_iter, time_budget, verbose,
-                            n_starts, seed, coarse, mesh, tols, evidence=None, extra_starts=()) -> SlewSolution:
+                            n_starts, seed, coarse, mesh, tols, evidence=None, extra_starts=(),
+                            defer_tf_tol=False) -> SlewSolution:
     """``solve_collocation`` on one mesh (or each mesh of a list). ``evidence``: a dict that
     carries the saddle rule's count of agreeing symmetry-breaking starts between meshes."""
     t_start = time.perf_counter()
@@ -1638,19 +1661,29 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     # solve from the answer (the starts' grid is too coarse to say how accurate tf is); else the
     # starts' grid again, from the answer, when the refinement (or the back-off) left the coarse
     # answer's basin
+    def compare(run, dl):
+        """``(T on the comparison grid or NaN, nit, nfev)``: ``run`` solved again on N / 2 (or on
+        the starts' grid) from itself, before ``dl``."""
+        if not (run.success and time.perf_counter() < dl):
+            return math.nan, 0, 0
+        nlp_cmp = nlp1 if N_half is None else _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
+                                                   min(max_iter, _COARSE_MAX_ITER), verbose)
+        r2 = nlp_cmp.solve(_regrid(run, nlp_cmp), dl, run.source, delta=run.delta)
+        # (an N / 2 answer in another basin says nothing of this one's accuracy)
+        ok = r2.success and (N_half is None or abs(run.T - r2.T) <= 1e-2 * run.T)
+        return (r2.T if ok else math.nan), r2.nit, r2.nfev
+
+    deferred = False
     if N_half is not None or (from_coarse and abs(best.T - Tc) > 1e-2 * best.T):
         if N_half is not None:
             Tc = math.nan
-        if best.success and time.perf_counter() < deadline:
-            nlp_cmp = nlp1 if N_half is None else _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
-                                                       min(max_iter, _COARSE_MAX_ITER), verbose)
-            r2 = nlp_cmp.solve(_regrid(best, nlp_cmp), deadline, best.source, delta=best.delta)
-            nit += r2.nit
-            nfev += r2.nfev
-            # (an N / 2 answer in another basin says nothing of this one's accuracy)
-            ok = r2.success and (N_half is None or abs(best.T - r2.T) <= 1e-2 * best.T)
-            Tc = r2.T if ok else math.nan
+        deferred = defer_tf_tol and N_half is not None and best.success
+        if not deferred:
+            Tc, n1, n2 = compare(best, deadline)
+            nit, nfev = nit + n1, nfev + n2
     fields, checks = _post(sc, best, Tc, tols_all, rep)
+    if deferred:
+        fields["tf_tol"] = math.nan
     route = f"Hermite–Simpson, N={best.nlp.N}"
     if from_coarse:
         route += f", warm start from N={Nc} (best of {len(conv1)} converged start(s))"
@@ -1712,4 +1745,11 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     msg += local
     if failures:
         msg += " Runs that failed: " + "; ".join(failures)
-    return SlewSolution(True, STATUS_SUCCESS, msg, **kw)
+    sol = SlewSolution(True, STATUS_SUCCESS, msg, **kw)
+    if deferred:
+        def settle(budget):
+            T_cmp, n1, n2 = compare(best, time.perf_counter() + budget)
+            # as _post: the comparison grid's change of tf, else the replay's boundary miss
+            return _post(sc, best, T_cmp, tols_all, rep)[0]["tf_tol"], n1, n2
+        sol._tf_tol_pending = settle
+    return sol

@@ -92,6 +92,8 @@ class SlewSolution:
     warm_start: dict = field(default_factory=dict)
     problem: Any = None
     _control: Optional[Callable] = None
+    # collocation's deferred tf_tol measurement (``collocation.settle_tf_tol``), if any
+    _tf_tol_pending: Optional[Callable] = field(default=None, repr=False, compare=False)
 
     def control(self, t):
         """Torque at time(s) ``t`` (problem units). Bang-bang: exact from the switch times."""
