@@ -1340,7 +1340,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
-            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments)
+            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments, deadline=deadline)
         nit += a.nit
         nfev += a.nfev
         if not a.success:

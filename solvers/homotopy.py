@@ -6,6 +6,7 @@ bang-bang solvers (``switch_time`` then event-driven verification).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,26 +32,29 @@ class PathResult:
 
 
 def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1.05, tol=1e-8,
-                  max_newton=25, max_steps=60, on_point=None, path_rtol=1e-9):
+                  max_newton=25, max_steps=60, on_point=None, path_rtol=1e-9, stall=None, deadline=math.inf):
     """Follow a one-parameter family from ``start`` to ``stop`` (geometric steps).
 
     ``set_param(bvp, value)`` configures the problem; a failed step is retried with a
     smaller factor (down to ``min_factor``). ``on_point(point) -> bool`` may stop the
     path early (returns True to stop); it runs at the problem's own tolerance, while
-    the path itself is integrated at ``path_rtol``.
+    the path itself is integrated at ``path_rtol``. ``stall``: the Newton solves' stall
+    criterion (``newton_shoot``): a step whose Newton stalls is retried shorter at once.
+    ``deadline`` (``time.perf_counter()`` value): checked before each step; past it the path
+    stops and fails (its points so far are returned).
     """
     # the path's points are stepping stones: integrate them more loosely than answers
     saved_tol = (bvp.rtol, bvp.atol)
     bvp.rtol, bvp.atol = max(bvp.rtol, path_rtol), max(bvp.atol, path_rtol)
     try:
         return _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton,
-                         max_steps, on_point, saved_tol)
+                         max_steps, on_point, saved_tol, stall, deadline)
     finally:
         bvp.rtol, bvp.atol = saved_tol
 
 
 def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton, max_steps,
-              on_point, answer_tol):
+              on_point, answer_tol, stall=None, deadline=math.inf):
     def visit(point):
         # on_point may solve for an answer: give it the answer tolerance meanwhile
         if on_point is None:
@@ -66,7 +70,7 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
     nit = nfev = 0
     cur = start
     set_param(bvp, cur)
-    r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton)
+    r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)
     nit += r.nit
     nfev += r.nfev
     if not r.success:
@@ -82,9 +86,11 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         steps += 1
         if steps > max_steps:
             return PathResult(False, points, nit, nfev, "too many continuation steps")
+        if time.perf_counter() > deadline:
+            return PathResult(False, points, nit, nfev, f"time budget exhausted (continuation at {cur:g})")
         nxt = max(cur / f, stop) if down else min(cur * f, stop)
         set_param(bvp, nxt)
-        r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton)
+        r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)
         nit += r.nit
         nfev += r.nfev
         if r.success and r.T > 0:

@@ -71,6 +71,7 @@ STATUS_LINE_SEARCH = 2
 STATUS_FLOW_FAILED = 3
 STATUS_NONFINITE = 4
 STATUS_BAD_DURATION = 5
+STATUS_STALLED = 6
 
 MESSAGES = {
     STATUS_CONVERGED: "Newton converged: residual below tolerance.",
@@ -79,6 +80,7 @@ MESSAGES = {
     STATUS_FLOW_FAILED: "Propagation failed at the initial guess.",
     STATUS_NONFINITE: "Non-finite residual or Jacobian.",
     STATUS_BAD_DURATION: "The duration became non-positive.",
+    STATUS_STALLED: "Stalled: the residual stopped decreasing (the stall criterion given).",
 }
 
 
@@ -173,7 +175,7 @@ def initial_nodes(problem, p, T, M):
 
 
 def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_iter=40,
-                 max_step=None, min_alpha=1e-6, scale=None, linear_solver="lstsq") -> ShootingResult:
+                 max_step=None, min_alpha=1e-6, scale=None, linear_solver="lstsq", stall=None) -> ShootingResult:
     """Solve the BVP by damped Newton from ``(p0, T0)``.
 
     ``linear_solver``: ``"lstsq"`` (minimum-norm least squares, SVD: right for the
@@ -184,9 +186,22 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
     ``max_step`` caps the Newton step (inf-norm, relative to the unknowns' scale ``scale``)
     so a poor guess cannot throw the iterate far away. Converged when the residual's
     inf-norm is below ``tol``.
+
+    ``stall``: ``(k, factor, floor)`` stops the iteration (``STATUS_STALLED``) once, after at
+    least ``k`` iterations, the residual is above ``floor`` and more than ``factor`` times its
+    value ``k`` iterations before: a damped Newton that has stopped making progress on a
+    rank-deficient problem is usually held by a non-zero local minimum of the residual, and a
+    continuation step would rather retry with a shorter step than spend its iteration limit.
     """
     if linear_solver not in ("lstsq", "lu"):
         raise ValueError(f"linear_solver: expected 'lstsq' or 'lu', got {linear_solver!r}")
+    if stall is not None:
+        ok = (isinstance(stall, (tuple, list)) and len(stall) == 3 and isinstance(stall[0], (int, np.integer))
+              and not isinstance(stall[0], bool) and stall[0] >= 1
+              and all(isinstance(v, (int, float)) and math.isfinite(v) for v in stall[1:])
+              and 0.0 < stall[1] < 1.0 and stall[2] >= 0.0)
+        if not ok:
+            raise ValueError(f"stall: expected (k ≥ 1 iterations, factor in (0, 1), floor ≥ 0), got {stall!r}")
     counter = _Counter()
     M = int(segments)
     if M < 1:
@@ -217,6 +232,9 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
             break
         if nit >= max_iter:
             status = STATUS_MAX_ITER
+            break
+        if stall is not None and nit >= stall[0] and rn > stall[1] * history[-1 - stall[0]] and rn > stall[2]:
+            status = STATUS_STALLED
             break
         if not np.all(np.isfinite(Jm)):
             status = STATUS_NONFINITE

@@ -60,3 +60,26 @@ def test_nonpositive_duration_is_a_clean_failure():
 def test_segments_must_be_positive():
     with pytest.raises(ValueError, match="segments"):
         newton_shoot(Oscillator(1.0), [1.0], 1.0, segments=0)
+
+
+
+def test_stall_criterion_stops_a_newton_that_creeps():
+    """Steps capped at 1 % (``max_step``) shrink the residual by about 3 % an iteration: the
+    free run converges after 39 iterations, the stall criterion (half in 4 iterations) stops it
+    after 4."""
+    from solvers.shooting import STATUS_STALLED
+    free = newton_shoot(Oscillator(2.0), [1.5], 1.2, max_iter=60, max_step=0.01)
+    cut = newton_shoot(Oscillator(2.0), [1.5], 1.2, max_iter=60, max_step=0.01, stall=(4, 0.5, 1e-5))
+    assert free.success and free.nit > 30
+    assert not cut.success and cut.status == STATUS_STALLED and "Stalled" in cut.message
+    assert cut.nit == 4 and cut.history == free.history[:5]
+    assert cut.history[-1] > 0.5 * cut.history[0]
+    # below the floor the criterion does not apply: the same creeping run is left to finish
+    floor = newton_shoot(Oscillator(2.0), [1.5], 1.2, max_iter=60, max_step=0.01, stall=(4, 0.5, 10.0))
+    assert floor.success and floor.nit == free.nit
+
+
+def test_stall_criterion_leaves_a_converging_newton_alone():
+    plain = newton_shoot(Oscillator(2.0), [1.5], 1.2, tol=1e-13)
+    cut = newton_shoot(Oscillator(2.0), [1.5], 1.2, tol=1e-13, stall=(2, 0.5, 1e-5))
+    assert cut.success and cut.nit == plain.nit and cut.p[0] == plain.p[0]
