@@ -1112,7 +1112,7 @@ def _refine_collocation(target, col, options, max_candidates, budget):
                 model_guess=True)
     ref = _solve_indirect(target, "indirect", g, **opts)
     accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * _rel_tol(col)))
-    if ref.success and not accepted and col._tf_tol_pending is not None:
+    if ref.success and not accepted and getattr(col, "_tf_tol_pending", None) is not None:
         # slower than the floor allows: the deferred tf_tol may allow it
         settle_tf_tol(col, budget)
         accepted = bool(ref.tf <= col.tf * (1.0 + 2.0 * _rel_tol(col)))
@@ -1193,7 +1193,7 @@ def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=F
 
 def settle_tf_tol(sol, budget) -> None:
     """``collocation.settle_tf_tol`` when a measurement is pending (casadi imported only then)."""
-    if sol._tf_tol_pending is not None:
+    if getattr(sol, "_tf_tol_pending", None) is not None:
         from .collocation import settle_tf_tol as settle
         settle(sol, budget)
 
@@ -1211,7 +1211,7 @@ def _refine_touching_cones(prob, col, options) -> SlewSolution:
     from .cone_touch import solve_touch
     sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
     slower = sol.verification.get("not_slower_than_seed", {})
-    if not sol.success and col._tf_tol_pending is not None and not slower.get("passed", True):
+    if not sol.success and getattr(col, "_tf_tol_pending", None) is not None and not slower.get("passed", True):
         # slower than the 1e-3 floor allows: the deferred tf_tol may allow more, and then the
         # touch extremal is solved again against it
         rel = _rel_tol(col)

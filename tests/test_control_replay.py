@@ -188,3 +188,40 @@ def test_the_compiled_guess_path_is_the_python_loop(p_norm):
         assert new.T == T and np.array_equal(new.t, t)
         assert np.allclose(new.q, Y[:, 0:4], rtol=0, atol=1e-12) and np.allclose(new.w, Y[:, 4:7], rtol=0, atol=1e-11)
         assert np.allclose(new.u, Uu, rtol=0, atol=1e-12)
+
+
+def test_guess_path_switch_exactly_on_a_grid_point_and_a_midpoint():
+    """An axis flips at every instant at or before the time asked (as ``searchsorted(side="right")``):
+    a switch exactly on a grid point acts from that point's own step, one exactly at a step's
+    midpoint from that step's second and third stages."""
+    from solvers.core import attitude_flow as af
+    from solvers.core.control_replay import guess_path
+    J = np.array([1.0, 0.8, 0.6])
+    U = np.array([1.0, 0.5, 0.7])
+    n = 8
+    t = np.linspace(0.0, 2.0, n + 1)
+    h = t[1] - t[0]
+    y0 = np.zeros(14)
+    y0[0] = 1.0
+    sw_t = np.array([t[3], t[5] + 0.5 * h])       # x on grid point 3, y at the midpoint of step 5
+    sw_axis = np.array([0, 1], dtype=np.int64)
+    u0 = np.array([1.0, -1.0, 1.0])
+    Y, Uu = guess_path(y0, t, J, U, af.MODE_BANG, 0.0, sw_t, sw_axis, u0, True)
+
+    def torque(tt):
+        flips = np.array([np.searchsorted(np.sort(sw_t[sw_axis == i]), tt, side="right") for i in range(3)])
+        return U * u0 * np.where(flips % 2 == 0, 1.0, -1.0)
+    y = y0.copy()
+    for k in range(n):
+        tt = t[k]
+        k1 = af.ext_rhs(y, torque(tt), J)
+        k2 = af.ext_rhs(y + 0.5 * h * k1, torque(tt + 0.5 * h), J)
+        k3 = af.ext_rhs(y + 0.5 * h * k2, torque(tt + 0.5 * h), J)
+        k4 = af.ext_rhs(y + h * k3, torque(tt + h), J)
+        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        y[0:4] /= np.linalg.norm(y[0:4])
+        assert np.allclose(Y[k + 1], y, rtol=0, atol=1e-14)
+    # the torque sampled at the grid points: x flipped from point 3 on, y from point 6 on
+    assert np.array_equal(Uu[:, 0], np.where(np.arange(n + 1) >= 3, -1.0, 1.0))
+    assert np.array_equal(Uu[:, 1], np.where(np.arange(n + 1) >= 6, 0.5, -0.5))
+    assert np.array_equal(Uu[:, 2], np.full(n + 1, 0.7))

@@ -144,3 +144,35 @@ def test_an_extremal_slower_than_an_earlier_sequences_slew_does_not_win(monkeypa
     ans, _ = _neighbour_sequences_route(p, {}, info)
     assert len(calls) >= 2 and ans.tf == ref.tf and not ans.exact
     assert info["neighbour_sequences"]["exact"] is False
+
+
+def test_a_bang_bang_answer_no_faster_than_the_eigenaxis_slew_is_rejected(monkeypatch, p575):
+    # every sequence gives a verified bang-bang slew, none an extremal, and the fastest is slower
+    # than the eigenaxis slew: the route gives nothing (the collocation route answers), and says why
+    import solvers.api as api
+    import solvers.switch_time_opt as sto
+    p, ref = p575
+    assert ref.tf < ref.baseline_tf
+
+    class Fake:
+        def __init__(self, tf):
+            self.tf, self.exact, self.success = tf, False, True
+            self.nit = self.nfev = 1
+            self.route, self.message, self.method = "fake", "", "switch-time"
+            self.verification, self.baseline_tf, self.wall_time = {}, float("nan"), 0.0
+
+    monkeypatch.setattr(sto, "bang_bang_from_sequences",
+                        lambda *a, **k: (Fake(ref.baseline_tf * 1.01), object(), (2, 3)))
+    monkeypatch.setattr(api, "_exact_from_kkt", lambda *a, **k: None)
+    info = {}
+    ans, (nit, nfev) = _neighbour_sequences_route(p, {}, info)
+    rec = info["neighbour_sequences"]
+    assert ans is None and rec["rejected"] == "not faster than the eigenaxis slew"
+    assert rec["tried"] >= 1 and nit == 2 * rec["tried"] and nfev == 3 * rec["tried"]
+    # a bang-bang answer faster than the eigenaxis slew is kept, with the baseline check recorded
+    monkeypatch.setattr(sto, "bang_bang_from_sequences",
+                        lambda *a, **k: (Fake(ref.tf * 1.001), object(), (2, 3)))
+    info = {}
+    ans, _ = _neighbour_sequences_route(p, {}, info)
+    assert ans is not None and ans.tf == ref.tf * 1.001 and "rejected" not in info["neighbour_sequences"]
+    assert ans.verification["eigenaxis_baseline"]["passed"] and ans.baseline_tf > ans.tf
