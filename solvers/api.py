@@ -1192,10 +1192,9 @@ def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=F
 
 
 def settle_tf_tol(sol, budget) -> None:
-    """``collocation.settle_tf_tol`` when a measurement is pending (casadi imported only then)."""
-    if getattr(sol, "_tf_tol_pending", None) is not None:
-        from .collocation import settle_tf_tol as settle
-        settle(sol, budget)
+    """``collocation.settle_tf_tol`` (imported where used, as collocation is everywhere here)."""
+    from .collocation import settle_tf_tol as settle
+    settle(sol, budget)
 
 
 def _rel_tol(col) -> float:

@@ -1128,6 +1128,12 @@ def _project_and_scale(sc, xx, uu, lam):
     return lam * c, float(np.max(np.abs(H * c + 1.0)))
 
 
+def _tf_tol(T, tau, Tc, miss_tol):
+    """``tf_tol``: the change of ``T`` from the comparison grid's ``Tc`` (never below 1e-10
+    relative), or, without one (NaN), ``miss_tol`` (the re-propagation's boundary miss)."""
+    return max(abs(T - Tc) * tau, T * tau * 1e-10) if math.isfinite(Tc) else miss_tol
+
+
 def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
     """SlewSolution fields and the verification checks of a solved run."""
     prob = sc.prob
@@ -1196,11 +1202,8 @@ def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
     checks["hamiltonian_spread"] = make_check(H_spread, math.inf, True)
     # ---- tf tolerance: the change from the coarse grid, or else the boundary miss of the
     # re-propagation as a relative time (an order of magnitude only)
-    if math.isfinite(Tc):
-        tf_tol = abs(T - Tc) * tau
-    else:
-        tf_tol = T * tau * max(att, rate) if math.isfinite(att) else math.inf
-    tf_tol = max(tf_tol, T * tau * 1e-10)
+    miss_tol = max(T * tau * max(att, rate) if math.isfinite(att) else math.inf, T * tau * 1e-10)
+    tf_tol = _tf_tol(T, tau, Tc, miss_tol)
     if math.isinf(sc.p):
         sw, first = _switches(t_all, u_all, sc.U)
         sw = [s * tau for s in sw]
@@ -1682,8 +1685,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
             Tc, n1, n2 = compare(best, deadline)
             nit, nfev = nit + n1, nfev + n2
     fields, checks = _post(sc, best, Tc, tols_all, rep)
-    if deferred:
-        fields["tf_tol"] = math.nan
+    if deferred:    # (Tc is NaN here: _post gave the boundary miss's estimate, kept for settle)
+        miss_tol, fields["tf_tol"] = fields["tf_tol"], math.nan
     route = f"Hermite–Simpson, N={best.nlp.N}"
     if from_coarse:
         route += f", warm start from N={Nc} (best of {len(conv1)} converged start(s))"
@@ -1749,7 +1752,6 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if deferred:
         def settle(budget):
             T_cmp, n1, n2 = compare(best, time.perf_counter() + budget)
-            # as _post: the comparison grid's change of tf, else the replay's boundary miss
-            return _post(sc, best, T_cmp, tols_all, rep)[0]["tf_tol"], n1, n2
+            return _tf_tol(best.T, sc.tau, T_cmp, miss_tol), n1, n2
         sol._tf_tol_pending = settle
     return sol
