@@ -77,7 +77,11 @@ BANG_BANG_BUDGET = 1.0
 # challenged by the collocation route (``_challenge_learned_answer``), and so is one near a half turn
 LOCAL_OPTIMUM_MARGIN = 0.015
 HALF_TURN_MARGIN_DEG = 10.0
-CHALLENGE_MIN_BUDGET = 1.0   # s: collocation's own floor (``_solve_auto``); with less left, no challenge
+CHALLENGE_MIN_BUDGET = 1.0   # s: the collocation route takes 0.3-1 s; with less left, no challenge
+# s: what a stage gets when the time budget is spent before it starts: it stops at its first
+# check and reports the budget exhausted. (Stages used to get 0.5-1 s whatever was left, so
+# that a budget of 0.05 s could take 3 s; ``benchmarks/bench_budget.py``)
+MIN_STAGE_BUDGET = 1e-3
 # s: the singular table's switch-time optimisations (all its sequences); then, only when the
 # answer's sequence is a KKT point, the exact solver from its KKT costates (its own budget)
 SINGULAR_TABLE_BUDGET = 0.3
@@ -110,6 +114,11 @@ NEIGHBOUR_KKT_BUDGET = 0.1
 # (``_pnorm_indirect_first``; it takes 0.1-0.4 s there, the collocation route 0.4-16 s)
 PNORM_INDIRECT_BUDGET = 2.0
 PNORM_INDIRECT_MIN_INERTIA_RATIO = 0.3   # the measured range (``_pnorm_indirect_first``)
+
+
+def _left(budget, spent) -> float:
+    """Seconds left of ``budget`` after ``spent``, at least ``MIN_STAGE_BUDGET``."""
+    return max(MIN_STAGE_BUDGET, float(budget) - float(spent))
 
 
 def _structure_from_guess(g: Guess, bvp) -> Optional[Structure]:
@@ -238,7 +247,12 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
-    ``time_budget`` (s, default 20), ``warm_budget`` (s, for the learned guess's candidates,
+    ``time_budget`` (s, default 20; ``method="collocation"``: 60, as ``solve_collocation``) is
+    the whole solve's: every stage gets what is left of it and stops at its next check (between
+    Newton iterations, continuation steps, candidates and IPOPT iterations), the answer then
+    being the best verified one so far or status 2, budget exhausted. Not interrupted: the first
+    candidate of a multi-start, and compiling a kernel or building an NLP the first time in a
+    process (``benchmarks/bench_budget.py`` measures the overshoot). ``warm_budget`` (s, for the learned guess's candidates,
     default 1; 0.2 with keep-out cones), ``tols`` (verification tolerances, see
     ``solvers.verify``), ``n_dense`` (the dense record's steps are capped at ``tf / n_dense``; default 100, samples at
     every step and both sides of every switch), ``eps_min`` (end of the
@@ -287,7 +301,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
     if method == "collocation":
         from .collocation import solve_collocation
-        return solve_collocation(prob, guess=guess, **col_opts)
+        # solve's own time_budget and tols hold for collocation too (the ``collocation`` dict's win)
+        top = {k: options[k] for k in ("time_budget", "tols") if k in options}
+        return solve_collocation(prob, guess=guess, **dict(top, **col_opts))
     if method == "eigenaxis":
         if guess is not None:
             raise ValueError("guess: method='eigenaxis' plans the eigenaxis slew and takes no guess")
@@ -316,7 +332,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
             return warm
     rest = {k: v for k, v in options.items() if k != "warm_budget"}
     if info:   # the time budget is for the whole solve, the warm stage included
-        rest["time_budget"] = max(0.5, float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0))
+        rest["time_budget"] = _left(float(options.get("time_budget", 20.0)), time.perf_counter() - t0)
     if method == "auto":
         # the learned guess failed on a problem it covers: almost always a singular problem,
         # where the exact refinement after collocation does not succeed either (it succeeds
@@ -336,7 +352,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
                     # collocation route runs too, and the faster verified answer is kept
                     neighbours_bang, sol = sol, None
             if sol is None:      # its time comes out of the rest of the budget
-                rest["time_budget"] = max(0.5, rest["time_budget"] - (time.perf_counter() - t_table))
+                rest["time_budget"] = _left(rest["time_budget"], time.perf_counter() - t_table)
         if sol is None:
             sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0,
                               later=later, warm_info=info,
@@ -659,7 +675,7 @@ def _exact_after_uncertain_table(prob, bang, col_opts, options, budget, prefix, 
         rec["exact_check"] = f"skipped: {budget:.2f} s of the time budget left"
         return None
     try:
-        col = solve_collocation(prob, **dict({"time_budget": max(0.8, budget - 0.2)}, **col_opts))
+        col = solve_collocation(prob, **dict({"time_budget": max(MIN_STAGE_BUDGET, budget - 0.2)}, **col_opts))
         bang.nit += col.nit
         bang.nfev += col.nfev
         why = singular_arc_evidence(prob, col) if col.success else f"collocation failed: {col.message[:120]}"
@@ -940,7 +956,7 @@ def _solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
         ind.route = f"auto: indirect first (p-norm bound, p ≤ 2) → {ind.route}"
         ind.wall_time = time.perf_counter() - t0
         return ind
-    left = max(1.0, budget - (time.perf_counter() - t0))
+    left = _left(budget, time.perf_counter() - t0)
     sol = _solve_auto_route(prob, guess, col_opts, dict(options, time_budget=left), **kw)
     sol.route = f"auto: indirect first (p-norm bound, p ≤ 2) failed ({ind.message[:120]}) → {sol.route}"
     sol.nit += ind.nit
@@ -986,14 +1002,14 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     from .collocation import solve_collocation
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
-    col = solve_collocation(prob, **dict({"time_budget": max(1.0, budget - spent()), "defer_tf_tol": not indirect_ok},
+    col = solve_collocation(prob, **dict({"time_budget": _left(budget, spent()), "defer_tf_tol": not indirect_ok},
                                          **col_opts))
     if not indirect_ok:
         ref = _refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
         if ref is not None:
             ref.wall_time = spent()
             return ref
-        touch = _refine_touching_cones(prob, col, options) if col.success else None
+        touch = _refine_touching_cones(prob, col, options, _left(budget, spent())) if col.success else None
         if touch is not None and touch.success:
             touch.route = f"auto: collocation ({col.wall_time:.3g} s) → {touch.route}"
             touch.wall_time = spent()
@@ -1016,7 +1032,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             where the λω = 0 instant makes a near guess hard to refine): ``(ref, accepted, why)``;
             an accepted ``ref`` gets its route (``note`` after collocation's time) and wall time."""
             r, ok = _refine_collocation(prob, col, options, 2,
-                                        max(min(0.5, refine_cap), min(refine_cap, budget - spent())))
+                                        min(refine_cap, _left(budget, spent())))
             if ok:
                 r.route = f"auto: collocation ({col.wall_time:.3g} s{note}) → indirect refinement: {r.route}"
                 r.wall_time = spent()
@@ -1078,7 +1094,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
                        f"bang-bang refinement was not certified.")
         col.wall_time = spent()
         return col
-    ind = _solve_indirect(prob, "indirect", guess, **dict(options, time_budget=max(1.0, budget - spent())))
+    ind = _solve_indirect(prob, "indirect", guess, **dict(options, time_budget=_left(budget, spent())))
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()
     return ind
@@ -1154,7 +1170,7 @@ def _refine_inactive_cones(prob, col, options, budget_left, label="auto"):
         # of 400 cone problems; on 45 with inactive cones and an exact answer no such run showed)
         col.route += f"; cones inactive (clearance {cc['value']:.3g} rad), no exact refinement: {singular}"
         return None
-    ref, accepted = _refine_collocation(prob.replace(cones=[]), col, options, 1, max(0.5, min(2.0, budget_left)))
+    ref, accepted = _refine_collocation(prob.replace(cones=[]), col, options, 1, min(2.0, _left(budget_left, 0.0)))
     if not accepted or not _certify_clear(prob, ref):
         return None
     ref.route = (f"{label}: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
@@ -1180,7 +1196,7 @@ def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=F
     the path can still upset the NLP; the unconstrained optimum that is feasible is the
     constrained optimum."""
     free_prob = prob.replace(cones=[])
-    opts = dict(options, time_budget=max(1.0, budget_left))
+    opts = dict(options, time_budget=_left(budget_left, 0.0))
     free = (_solve_indirect(free_prob, "indirect", None, **opts) if exact_only
             else _solve_auto(free_prob, None, col_opts, opts))
     if not free.success or (exact_only and not free.exact) or not _certify_clear(prob, free):
@@ -1203,20 +1219,24 @@ def _rel_tol(col) -> float:
     return max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
 
 
-def _refine_touching_cones(prob, col, options) -> SlewSolution:
+def _refine_touching_cones(prob, col, options, budget=TOUCH_BUDGET) -> SlewSolution:
     """The exact extremal whose path touches cones at isolated instants (costate jumps there,
     ``solvers.cone_touch``), from a collocation answer; ``success=False`` if there is none
-    near it (a boundary arc, or Newton fails), or if it is slower than collocation's."""
+    near it (a boundary arc, or Newton fails), or if it is slower than collocation's.
+    ``budget`` (s): the caller's time left, a hard stop (the smoothing path gets at most
+    ``TOUCH_BUDGET`` of it)."""
     from .cone_touch import solve_touch
-    sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
+    deadline = time.perf_counter() + budget
+    touch_budget = min(TOUCH_BUDGET, budget)
+    sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=touch_budget, deadline=deadline)
     slower = sol.verification.get("not_slower_than_seed", {})
     if not sol.success and getattr(col, "_tf_tol_pending", None) is not None and not slower.get("passed", True):
         # slower than the 1e-3 floor allows: the deferred tf_tol may allow more, and then the
         # touch extremal is solved again against it
         rel = _rel_tol(col)
-        settle_tf_tol(col, TOUCH_BUDGET)
-        if _rel_tol(col) > rel:
-            sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=TOUCH_BUDGET)
+        settle_tf_tol(col, min(TOUCH_BUDGET, deadline - time.perf_counter()))
+        if _rel_tol(col) > rel and time.perf_counter() < deadline:
+            sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=touch_budget, deadline=deadline)
     sol.nit += col.nit
     sol.nfev += col.nfev
     return sol
@@ -1234,7 +1254,7 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     segments = int(options.get("segments", SEGMENTS))
     if segments < 2:
         raise ValueError(f"segments: the cone penalty route uses multiple shooting, needs ≥ 2, got {segments}")
-    col = solve_collocation(prob, guess=guess, **dict({"time_budget": max(1.0, budget), "defer_tf_tol": True},
+    col = solve_collocation(prob, guess=guess, **dict({"time_budget": budget, "defer_tf_tol": True},
                                                       **col_opts))
     if not col.success:
         free = _clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
@@ -1251,20 +1271,20 @@ def _solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     if ref is not None:
         ref.wall_time = time.perf_counter() - t0
         return ref
-    touch = _refine_touching_cones(prob, col, options)
+    touch = _refine_touching_cones(prob, col, options, _left(budget, time.perf_counter() - t0))
     if touch.success:
         touch.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {touch.route}"
         touch.wall_time = time.perf_counter() - t0
         return touch
     settle_tf_tol(col, budget - (time.perf_counter() - t0))   # the penalty route's tf_tol builds on it
     sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
-                          time_budget=max(1.0, budget - (time.perf_counter() - t0)))
+                          time_budget=_left(budget, time.perf_counter() - t0))
     sol.nit += col.nit + touch.nit
     sol.nfev += col.nfev + touch.nfev
     if sol.success:
         # the penalised extremal's costates carry the touch jumps smoothed out, a better seed
         # for the exact touch refinement than collocation's
-        exact = _refine_touching_cones(prob, sol, options)
+        exact = _refine_touching_cones(prob, sol, options, _left(budget, time.perf_counter() - t0))
         if exact.success:
             exact.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {sol.route} → {exact.route}"
             exact.wall_time = time.perf_counter() - t0

@@ -1611,22 +1611,25 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
             nfev += r.nfev
             if not r.success:
                 failures.append(f"{src} (N={N}): {r.status}")
+                budget_hit = budget_hit or r.status == "Maximum_WallTime_Exceeded"
             finals.append((r, rc.T if rc is not None and r.success else math.nan))
     else:
         finals = [(r, math.nan) for r in stage1]
     common = dict(method="collocation", problem=prob, n_candidates=len(stage1))
+    if not finals and not conv1:
+        # nothing to compare with the eigenaxis slew (planning it takes up to 0.1 s for a p-norm
+        # bound, after the time budget has run out)
+        status = STATUS_BUDGET_EXHAUSTED if budget_hit else STATUS_NOT_CONVERGED
+        return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} IPOPT: " + "; ".join(failures),
+                            nit=nit, nfev=nfev, wall_time=time.perf_counter() - t_start, **common)
     baseline = math.nan
-    if prob.is_rest_to_rest and prob.qf is not None:
+    if prob.is_rest_to_rest and prob.qf is not None and finals:
         from .eigenaxis import eigenaxis_slew
         baseline = eigenaxis_slew(prob, n_grid=1000).tf
     common["baseline_tf"] = baseline
     coarse_only = False
     if not finals:
-        status = STATUS_BUDGET_EXHAUSTED if budget_hit else STATUS_NOT_CONVERGED
-        if not conv1:
-            return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} IPOPT: " + "; ".join(failures),
-                                nit=nit, nfev=nfev, wall_time=time.perf_counter() - t_start, **common)
-        # the budget ran out before the refinement: return the coarse answer, unverified
+        # (conv1 is not empty here) the budget ran out before the refinement: return the coarse answer, unverified
         finals = [(conv1[0], math.nan)]
         coarse_only = True
     conv = [f for f in finals if f[0].success and not coarse_only]

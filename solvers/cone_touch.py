@@ -405,10 +405,11 @@ def _seed_name(seed):
     return "collocation" if seed.method == "collocation" else "penalised"
 
 
-def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
+def solve_touch(problem, seed, *, tols=None, time_budget=5.0, deadline=math.inf):
     """The exact extremal with touch-point junctions near ``seed`` (a collocation answer, or
     the penalised extremal of ``solvers.cone_penalty``), or a ``SlewSolution`` with
-    ``success=False`` saying why not. Accepted only if not slower than the seed."""
+    ``success=False`` saying why not. Accepted only if not slower than the seed.
+    ``time_budget`` and ``deadline``: as ``solve_touch_guess``."""
     t_start = time.perf_counter()
     if not math.isinf(problem.torque_norm):
         return _fail(problem, "per-axis bound only", t_start)
@@ -420,7 +421,7 @@ def solve_touch(problem, seed, *, tols=None, time_budget=5.0):
     guess = touch_guess_from(problem, seed, touches)
     col_rel = max(float(seed.tf_tol) / seed.tf if seed.tf_tol == seed.tf_tol else 0.0, 1e-3)
     return solve_touch_guess(problem, guess, reference=(float(seed.tf), 2.0 * col_rel, "not_slower_than_seed"),
-                             tols=tols, time_budget=time_budget, t_start=t_start)
+                             tols=tols, time_budget=time_budget, t_start=t_start, deadline=deadline)
 
 
 def _fail(problem, why, t_start):
@@ -453,12 +454,15 @@ def touch_guess_from(problem, seed, touches) -> Guess:
 
 
 def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=5.0, smoothing=True,
-                      t_start=None):
+                      t_start=None, deadline=math.inf):
     """Newton on the touch-point problem from ``guess`` (a ``Guess`` with ``touches``), then
     the verification of ``_verify``. ``reference``: ``(tf, relative tolerance, check name)``,
     the answer must not be slower than ``tf`` by more than the tolerance (a guard against
     converging to another, worse extremal). ``smoothing``: follow the tanh path when the
-    direct Newton fails (slower; a learned guess skips it for speed)."""
+    direct Newton fails (slower; a learned guess skips it for speed). ``time_budget`` (s)
+    bounds the structures tried and the smoothing path; without smoothing, every Newton solve
+    too. ``deadline`` (``time.perf_counter()`` time): a hard stop for all of it, checked between
+    Newton iterations (the caller's own time budget)."""
     t_start = time.perf_counter() if t_start is None else t_start
     tols = dict(DEFAULT_TOLS, **(tols or {}))
     if not math.isinf(problem.torque_norm):
@@ -485,7 +489,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     # once if so. Structures tried: the guess's, then the one its own costates produce
     # (event-driven propagation through the guessed touches), if different
     tried = []
-    over = lambda: time.perf_counter() - t_start > time_budget   # noqa: E731
+    over = lambda: time.perf_counter() - t_start > time_budget or time.perf_counter() > deadline   # noqa: E731
     for st in (_structure_of(guess, tau), "propagated"):
         if over():
             break
@@ -494,7 +498,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         if st is None or any(_same_structure(st, o) for o in tried):
             continue
         tried.append(st)
-        xs_, n1, n2 = _switch_time_solve(tp, x0, st, t_start + time_budget)
+        xs_, n1, n2 = _switch_time_solve(tp, x0, st, min(t_start + time_budget, deadline))
         nit, nfev = nit + n1, nfev + n2
         if xs_ is not None:
             starts.insert(len(starts) - 1, xs_)     # before the raw guess, after earlier answers
@@ -504,7 +508,8 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     for xstart in starts:
         if over() and xstart is x0 and len(starts) > 1:
             break
-        x, ok, n1, n2, rn = newton(tp, xstart, deadline=t_start + time_budget if not smoothing else math.inf)
+        x, ok, n1, n2, rn = newton(tp, xstart, deadline=min(t_start + time_budget if not smoothing else math.inf,
+                                                             deadline))
         nit, nfev = nit + n1, nfev + n2
         if ok:
             break
@@ -514,19 +519,22 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         # exact bang-bang problem from there
         xs, ok_s = x0, False
         for eps in SMOOTHING_PATH:
-            if time.perf_counter() - t_start > time_budget:
+            if over():
                 break
             bvp.set_mode("tanh", eps=eps)
-            xs, ok_s, n1, n2, rs = newton(tp, xs, tol=1e-9)
+            xs, ok_s, n1, n2, rs = newton(tp, xs, tol=1e-9, deadline=deadline)
             nit, nfev = nit + n1, nfev + n2
             if not ok_s:
                 break
         bvp.set_mode("bang")
         if ok_s:
-            x, ok, n1, n2, rn = newton(tp, xs)
+            x, ok, n1, n2, rn = newton(tp, xs, deadline=deadline)
             nit, nfev = nit + n1, nfev + n2
     if not ok:
-        sol = _fail(problem, f"Newton did not converge (residual {rn:.2g}, {nit} iterations)", t_start)
+        why = f"Newton did not converge (residual {rn:.2g}, {nit} iterations)"
+        if time.perf_counter() > deadline:
+            why += "; the time budget ran out"
+        sol = _fail(problem, why, t_start)
         sol.nit, sol.nfev = nit, nfev
         return sol
     sol = _verify(tp, x, problem, guess.source, reference, tols)

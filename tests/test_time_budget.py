@@ -1,0 +1,78 @@
+"""solve's ``time_budget`` holds for the whole solve: stages get what is left of it, not a floor
+of their own (collocation used to get at least 1 s, the touch refinement 1.5 s, whatever the
+caller's budget), and ``method="collocation"`` takes it from solve's options."""
+import math
+import time
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from solvers import api
+from solvers.collocation import solve_collocation
+from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_SUCCESS
+from test_cone_touch import TOUCH
+
+FULL = SlewProblem([1.0, 0.8, 0.6], q0=[1.0, 0.0, 0.0, 0.0], qf=[math.cos(0.6), math.sin(0.6), 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def touch_col():
+    # (builds the NLP templates of this problem, so the budgeted solves below time solving)
+    return solve_collocation(TOUCH)
+
+
+def test_collocation_method_takes_solves_time_budget(monkeypatch):
+    seen = {}
+
+    def fake(problem, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop")
+    monkeypatch.setattr(solvers.collocation, "solve_collocation", fake)
+    with pytest.raises(RuntimeError):
+        solvers.solve(FULL, method="collocation", time_budget=0.25, tols={"boundary_rate_error": 1e-7})
+    assert seen["time_budget"] == 0.25 and seen["tols"] == {"boundary_rate_error": 1e-7}
+    # the collocation dict's own value wins
+    with pytest.raises(RuntimeError):
+        solvers.solve(FULL, method="collocation", time_budget=0.25, collocation={"time_budget": 3.0})
+    assert seen["time_budget"] == 3.0
+
+
+def test_collocation_with_its_budget_spent_says_so(touch_col):
+    sol = solvers.solve(TOUCH, method="collocation", time_budget=1e-3)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "budget" in sol.message.lower()
+    # nothing converged: no eigenaxis slew is planned for the comparison
+    assert math.isnan(sol.baseline_tf)
+
+
+def test_auto_with_cones_keeps_a_short_budget(touch_col):
+    solvers.solve(TOUCH, warm_start=None)      # warm caches (the refinement's kernels)
+    t0 = time.perf_counter()
+    sol = solvers.solve(TOUCH, warm_start=None, time_budget=0.02)
+    wall = time.perf_counter() - t0
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    # the old floors gave collocation at least 1 s here; the IPOPT callback stops it at once
+    assert wall < 0.6
+
+
+def test_stages_get_what_is_left(monkeypatch):
+    budgets = []
+    real = solvers.collocation.solve_collocation
+
+    def spy(problem, **kw):
+        budgets.append(kw["time_budget"])
+        return real(problem, **kw)
+    monkeypatch.setattr(solvers.collocation, "solve_collocation", spy)
+    solvers.solve(TOUCH, warm_start=None, time_budget=0.3)
+    assert budgets and budgets[0] <= 0.3
+    assert api._left(0.3, 0.5) == api.MIN_STAGE_BUDGET and api._left(1.0, 0.25) == 0.75
+
+
+def test_touch_refinement_stops_at_the_callers_deadline(touch_col):
+    sol = api._refine_touching_cones(TOUCH, touch_col, {}, budget=1e-9)
+    assert not sol.success
+    assert "time budget ran out" in sol.message
+    full = api._refine_touching_cones(TOUCH, touch_col, {})
+    assert full.success and full.status == STATUS_SUCCESS
