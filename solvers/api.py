@@ -250,7 +250,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``time_budget`` (s, default 20; ``method="collocation"``: 60, as ``solve_collocation``) is
     the whole solve's: every stage gets what is left of it and stops at its next check (between
     Newton iterations, continuation steps, candidates and IPOPT iterations), the answer then
-    being the best verified one so far or status 2, budget exhausted. Not interrupted: the first
+    being the best verified one so far or status 3, budget exhausted. Not interrupted: the first
     candidate of a multi-start, and compiling a kernel or building an NLP the first time in a
     process (``benchmarks/bench_budget.py`` measures the overshoot). ``warm_budget`` (s, for the learned guess's candidates,
     default 1; 0.2 with keep-out cones), ``tols`` (verification tolerances, see
@@ -675,7 +675,7 @@ def _exact_after_uncertain_table(prob, bang, col_opts, options, budget, prefix, 
         rec["exact_check"] = f"skipped: {budget:.2f} s of the time budget left"
         return None
     try:
-        col = solve_collocation(prob, **dict({"time_budget": max(MIN_STAGE_BUDGET, budget - 0.2)}, **col_opts))
+        col = solve_collocation(prob, **dict({"time_budget": _left(budget, 0.2)}, **col_opts))
         bang.nit += col.nit
         bang.nfev += col.nfev
         why = singular_arc_evidence(prob, col) if col.success else f"collocation failed: {col.message[:120]}"

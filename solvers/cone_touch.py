@@ -489,7 +489,8 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     # once if so. Structures tried: the guess's, then the one its own costates produce
     # (event-driven propagation through the guessed touches), if different
     tried = []
-    over = lambda: time.perf_counter() - t_start > time_budget or time.perf_counter() > deadline   # noqa: E731
+    soft = min(t_start + time_budget, deadline)    # the structures' and the smoothing path's limit
+    over = lambda: time.perf_counter() > soft   # noqa: E731
     for st in (_structure_of(guess, tau), "propagated"):
         if over():
             break
@@ -498,7 +499,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         if st is None or any(_same_structure(st, o) for o in tried):
             continue
         tried.append(st)
-        xs_, n1, n2 = _switch_time_solve(tp, x0, st, min(t_start + time_budget, deadline))
+        xs_, n1, n2 = _switch_time_solve(tp, x0, st, soft)
         nit, nfev = nit + n1, nfev + n2
         if xs_ is not None:
             starts.insert(len(starts) - 1, xs_)     # before the raw guess, after earlier answers
@@ -508,8 +509,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     for xstart in starts:
         if over() and xstart is x0 and len(starts) > 1:
             break
-        x, ok, n1, n2, rn = newton(tp, xstart, deadline=min(t_start + time_budget if not smoothing else math.inf,
-                                                             deadline))
+        x, ok, n1, n2, rn = newton(tp, xstart, deadline=deadline if smoothing else soft)
         nit, nfev = nit + n1, nfev + n2
         if ok:
             break
