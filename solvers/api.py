@@ -34,7 +34,9 @@ per-axis switching-structure templates, the long-way eigenaxis, then seeded
 perturbations — and returns the best verified one.
 It stops when ``max_candidates`` have been tried; or, once ``min_candidates`` have
 been tried, when ``enough`` have converged and the best final time was reached by at
-least two of them; or when the ``time_budget`` runs out. ``SlewSolution.n_candidates`` says
+least two of them; or when the ``time_budget`` runs out. After the first verified extremal
+reached along a smoothing path, a per-axis candidate's path stops at ``candidate_cap``
+(``CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
 how many it tried. A multi-start is no proof of global optimality: on random problems the
 collocation-first route of ``"auto"`` found a faster extremal than the classical multi-start
 in about 1 case in 13.
@@ -61,7 +63,7 @@ from .switch_time_opt import switch_time_applies
 from .verify import DENSE_STEPS, make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
-_OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "seed", "time_budget", "tols", "n_dense",
+_OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "candidate_cap", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check"}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
@@ -114,6 +116,15 @@ NEIGHBOUR_KKT_BUDGET = 0.1
 # (``_pnorm_indirect_first``; it takes 0.1-0.4 s there, the collocation route 0.4-16 s)
 PNORM_INDIRECT_BUDGET = 2.0
 PNORM_INDIRECT_MIN_INERTIA_RATIO = 0.3   # the measured range (``_pnorm_indirect_first``)
+
+
+# After the first verified extremal reached along a smoothing path, a later candidate's path
+# stops after max(2 × that candidate's propagations, 200) propagations (solve's ``candidate_cap``). On 200
+# random per-axis slews (bench_solver seeds 1 and 2, all 16 candidates of each traced:
+# runs/s22/cand_trace.py, policy_sim.py) the paths that ran longer ended in slower local
+# extremals or failed: the cap returned the same answer on all 160 solved, and cut the median
+# multi-start from 0.94 to 0.65 s (a cap of 0.5× lost 4 answers, by up to 58 %).
+CANDIDATE_CAP = (2.0, 200.0)
 
 
 def _left(budget, spent) -> float:
@@ -246,7 +257,10 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     penalty route of an indirect solve with active cones: default 32, at least 2),
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
-    stopping early, default 2), ``seed`` (for the perturbed candidates, default 0),
+    stopping early, default 2), ``candidate_cap`` (per-axis: after the first verified extremal reached along a
+    smoothing path, a later candidate's path stops after ``max(multiple × that path's
+    propagations, floor)`` propagations;
+    default ``(2, 200)``, ``None`` for no cap), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20; ``method="collocation"``: 60, as ``solve_collocation``) is
     the whole solve's: every stage gets what is left of it and stops at its next check (between
     Newton iterations, continuation steps, candidates and IPOPT iterations), the answer then
@@ -1332,6 +1346,15 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         baseline = eigenaxis_time(bvp.ref_problem, n_grid=1000) / bvp.tau
     deadline = t_start + budget
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
+    cap = options.get("candidate_cap", CANDIDATE_CAP)
+    if cap is not None:
+        try:
+            cap_mult, cap_floor = (float(c) for c in cap)
+        except (TypeError, ValueError):
+            raise ValueError(f"candidate_cap: must be None or a pair (multiple, floor), got {cap!r}") from None
+        if not (cap_mult > 0 and cap_floor >= 0):
+            raise ValueError(f"candidate_cap: the multiple must be > 0 and the floor >= 0, got {cap!r}")
+    first_nfev = None       # propagations of the first verified candidate
 
     nit = nfev = 0
     tried = 0
@@ -1355,7 +1378,9 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
                 a = _polish_multiple(bvp, a, segments)
         elif per_axis:
             a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline,
-                                    T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf)
+                                    T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf,
+                                    max_nfev=(max(cap_mult * first_nfev, cap_floor)
+                                              if cap is not None and first_nfev is not None else math.inf))
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
@@ -1378,6 +1403,10 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             failures.append(f"{src}: {text}")
             continue
         found.append((a.T, a, tr, checks, src))
+        # the reference is a smoothing path's cost: a switch-time Newton from a full
+        # structure (a template: ~10 propagations) says nothing about how long a path needs
+        if first_nfev is None and a.route.startswith("tanh continuation"):
+            first_nfev = a.nfev
         if first_verified and not (a.T > baseline * (1 + 1e-7)):
             break
         if len(found) >= enough and tried >= min_candidates:

@@ -32,7 +32,8 @@ class PathResult:
 
 
 def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1.05, tol=1e-8,
-                  max_newton=25, max_steps=60, on_point=None, path_rtol=1e-9, stall=None, deadline=math.inf):
+                  max_newton=25, max_steps=60, on_point=None, path_rtol=1e-9, stall=None, deadline=math.inf,
+                  exhausted=None):
     """Follow a one-parameter family from ``start`` to ``stop`` (geometric steps).
 
     ``set_param(bvp, value)`` configures the problem; a failed step is retried with a
@@ -41,20 +42,22 @@ def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1
     the path itself is integrated at ``path_rtol``. ``stall``: the Newton solves' stall
     criterion (``newton_shoot``): a step whose Newton stalls is retried shorter at once.
     ``deadline`` (``time.perf_counter()`` value): checked before each step; past it the path
-    stops and fails (its points so far are returned).
+    stops and fails (its points so far are returned). ``exhausted(nfev) -> str | None``: a
+    further budget, checked at the same places with the path's propagations so far; a text
+    stops the path, which fails with that text as its message.
     """
     # the path's points are stepping stones: integrate them more loosely than answers
     saved_tol = (bvp.rtol, bvp.atol)
     bvp.rtol, bvp.atol = max(bvp.rtol, path_rtol), max(bvp.atol, path_rtol)
     try:
         return _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton,
-                         max_steps, on_point, saved_tol, stall, deadline)
+                         max_steps, on_point, saved_tol, stall, deadline, exhausted)
     finally:
         bvp.rtol, bvp.atol = saved_tol
 
 
 def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_newton, max_steps,
-              on_point, answer_tol, stall=None, deadline=math.inf):
+              on_point, answer_tol, stall=None, deadline=math.inf, exhausted=None):
     def visit(point):
         # on_point may solve for an answer: give it the answer tolerance meanwhile
         if on_point is None:
@@ -88,6 +91,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
             return PathResult(False, points, nit, nfev, "too many continuation steps")
         if time.perf_counter() > deadline:
             return PathResult(False, points, nit, nfev, f"time budget exhausted (continuation at {cur:g})")
+        why = exhausted(nfev) if exhausted is not None else None
+        if why:
+            return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
         nxt = max(cur / f, stop) if down else min(cur * f, stop)
         set_param(bvp, nxt)
         r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)

@@ -100,15 +100,28 @@ def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", ma
 
 
 def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps_min=1e-3,
-                        deadline=math.inf, T_accept=math.inf):
+                        deadline=math.inf, T_accept=math.inf, max_nfev=math.inf):
     """One attempt at the exact per-axis extremal from one nondimensional guess.
 
     Along the smoothing path, a bang-bang extremal slower than ``T_accept`` (the
     eigenaxis slew, nondimensional) is kept only as a fallback and the path goes on:
     it is a local optimum, and the smaller ε points usually lead to the better one.
     The path starts at the first of ``eps_starts`` where Newton converges.
+    ``max_nfev``: the attempt stops once it has made about that many propagations (checked
+    between Newton solves), keeping an extremal it found before.
     """
     nit = nfev = 0
+    path_nfev = 0       # the running path's propagations, as last reported to over_cap
+    capped = []
+
+    def over_cap(n_path):
+        nonlocal path_nfev
+        path_nfev = n_path
+        if nfev + n_path > max_nfev:
+            capped.append(True)
+            return f"stopped at its cap of {max_nfev:g} propagations"
+        return None
+
     if structure is not None:
         a = solve_structure(bvp, z, T, structure, route="switch-time (guess structure)")
         if a.success and a.T <= T_accept:
@@ -124,6 +137,8 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
             return False
         bvp.set_mode("tanh", eps=pt.param)
         for st in structure_candidates(bvp, pt.z, pt.T):
+            if over_cap(path_nfev):
+                return True
             a = solve_structure(bvp, pt.z, pt.T, st, route=f"tanh continuation to eps={pt.param:.3g} + switch-time")
             nit += a.nit
             nfev += a.nfev
@@ -142,8 +157,10 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
     scale = min(1.0, max(2.0 * sig, 1e-6))
     path = None
     for eps0 in eps_starts:
+        path_nfev = 0
         path = continue_path(bvp, z, T, eps0 * scale, eps_min * scale, set_param=set_tanh, on_point=try_point,
-                             stall=SMOOTHING_STALL, deadline=deadline)
+                             stall=SMOOTHING_STALL, deadline=deadline,
+                             exhausted=over_cap if max_nfev < math.inf else None)
         nit += path.nit
         nfev += path.nfev
         if path.points:       # the path started: do not restart it from another ε
@@ -155,6 +172,9 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         return a
     if not path.success:
         return Attempt(False, z, T, None, nit, nfev, "tanh continuation", path.message)
+    if capped:
+        return Attempt(False, z, T, None, nit, nfev, "tanh continuation",
+                       f"stopped at its cap of {max_nfev:g} propagations (eps = {path.points[-1].param:.3g})")
     last = path.points[-1]
     msg = (f"no bang-bang structure near the smoothed extremal (eps = {last.param:.3g}, "
            f"tf = {last.T * bvp.tau:.9g})" + singular_diagnosis(bvp, last.z, last.T, last.param))

@@ -1,0 +1,97 @@
+"""The per-candidate propagation cap of the per-axis multi-start (``candidate_cap``)."""
+import math
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from slew_env.core import qfrom_uniform
+from solvers.attitude_bvp import AttitudeBVP
+from solvers.guesses import eigenaxis_guess
+from solvers.homotopy import continue_path, set_tanh
+from solvers.indirect import per_axis_from_guess
+
+
+def _problem(seed=3):
+    rng = np.random.default_rng(seed)
+    return SlewProblem(rng.uniform(0.3, 1.0, 3), q0=qfrom_uniform(*rng.random(3)), qf=qfrom_uniform(*rng.random(3)))
+
+
+def _bvp(seed=3):
+    bvp = AttitudeBVP(_problem(seed))
+    z, T = eigenaxis_guess(bvp).to_nondim(bvp)
+    return bvp, z, T
+
+
+def test_path_stops_when_its_budget_says_so():
+    bvp, z, T = _bvp()
+    full = continue_path(bvp, z, T, 0.3, 1e-3, set_param=set_tanh)
+    assert full.success and full.nfev > 40
+    seen = []
+
+    def exhausted(nfev):
+        seen.append(nfev)
+        return "out of propagations" if nfev > 20 else None
+
+    cut = continue_path(bvp, z, T, 0.3, 1e-3, set_param=set_tanh, exhausted=exhausted)
+    assert not cut.success and cut.message.startswith("out of propagations (continuation at")
+    # checked before each step with the path's own count so far, which only grows
+    assert seen == sorted(seen) and seen[-1] > 20 and all(n <= 20 for n in seen[:-1])
+    assert cut.nfev == seen[-1] < full.nfev
+
+
+def test_capped_attempt_fails_with_the_cap_in_its_message():
+    bvp, z, T = _bvp()
+    free = per_axis_from_guess(bvp, z, T)
+    assert free.success and free.nfev > 60
+    capped = per_axis_from_guess(bvp, z, T, max_nfev=30)
+    assert not capped.success
+    assert "stopped at its cap of 30 propagations" in capped.message
+    # the cap is checked between Newton solves: one solve (at most 25 iterations, each a
+    # propagation, plus the line search's) may overrun it
+    assert 30 < capped.nfev < 30 + 80 < free.nfev
+    # an ample cap changes nothing
+    same = per_axis_from_guess(bvp, z, T, max_nfev=10 * free.nfev)
+    assert same.success and same.T == free.T and same.nfev == free.nfev
+
+
+def test_default_cap_returns_the_uncapped_answer_with_fewer_propagations():
+    # bench_solver seed 1, problem 3: the long-way candidate's path runs ~3x longer than the
+    # eigenaxis candidate's and ends in a slower extremal (2.7367 s against 1.76519 s)
+    import sys, os
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    from bench_solver import random_problems
+    p = random_problems(4, 1, math.inf)[3]
+    capped = solvers.solve(p, method="indirect", warm_start=None)
+    free = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=None)
+    assert capped.success and free.success
+    assert capped.tf == pytest.approx(free.tf, rel=1e-9)
+    assert capped.tf == pytest.approx(1.76519, abs=1e-5)
+    assert capped.nfev < 0.8 * free.nfev     # 6,988 against 9,303 propagations
+
+
+def test_tiny_cap_keeps_the_first_verified_answer():
+    p = _problem()
+    first = solvers.solve(p, method="indirect", warm_start=None, max_candidates=1)
+    tiny = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=(1e-9, 0.0), max_candidates=6)
+    assert first.success and tiny.success and tiny.n_candidates == 6
+    assert tiny.tf <= first.tf * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("bad", [0.5, (2.0,), (0.0, 100), (2.0, -1), ("a", 1), (float("nan"), 100)])
+def test_bad_candidate_cap_is_a_clear_error(bad):
+    with pytest.raises(ValueError, match="candidate_cap"):
+        solvers.solve(_problem(), method="indirect", warm_start=None, candidate_cap=bad)
+
+
+def test_a_template_answer_does_not_set_the_cap():
+    # bench_solver seed 3, problem 34: the first verified extremal comes from a structure
+    # template's switch-time Newton (11 propagations, 3.25294 s); capping the paths after it
+    # at 200 propagations stopped the long-way path (661) that finds the optimum, 3.08081 s
+    import sys, os
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    from bench_solver import random_problems
+    p = random_problems(35, 3, math.inf)[34]
+    sol = solvers.solve(p, method="indirect", warm_start=None)
+    assert sol.success and sol.tf == pytest.approx(3.080808962427157, rel=1e-9)
