@@ -118,13 +118,35 @@ PNORM_INDIRECT_BUDGET = 2.0
 PNORM_INDIRECT_MIN_INERTIA_RATIO = 0.3   # the measured range (``_pnorm_indirect_first``)
 
 
-# After the first verified extremal reached along a smoothing path, a later candidate's path
-# stops after max(2 × that candidate's propagations, 200) propagations (solve's ``candidate_cap``). On 200
-# random per-axis slews (bench_solver seeds 1 and 2, all 16 candidates of each traced:
-# runs/s22/cand_trace.py, policy_sim.py) the paths that ran longer ended in slower local
-# extremals or failed: the cap returned the same answer on all 160 solved, and cut the median
-# multi-start from 0.94 to 0.65 s (a cap of 0.5× lost 4 answers, by up to 58 %).
+# After the first verified extremal reached along the smoothing path of a built-in candidate
+# (the eigenaxis guess and its variants), each later candidate's attempt stops after
+# max(2 × the propagations of that first attempt, 200) propagations (solve's ``candidate_cap``).
+# On 200 random per-axis slews (bench_solver seeds 1 and 2, all 16 candidates of each traced:
+# runs/s22/cand_trace.py, policy_sim.py, not in the repository) the paths that ran longer ended
+# in slower local extremals or failed: simulated, this rule returned the same verified answers
+# as the uncapped multi-start on all 159 it verifies, with the median from 0.94 to 0.66 s (a cap
+# of 0.5× lost 4 answers, by up to 58 %); A/B on seeds 3 and 4: identical verified answers.
 CANDIDATE_CAP = (2.0, 200.0)
+
+
+def _checked_cap(cap) -> Tuple[float, float]:
+    """``candidate_cap`` as a ``(multiple, floor)`` pair of floats, or a ``ValueError``."""
+    bad = ValueError(f"candidate_cap: must be None or a pair (multiple, floor) of numbers >= 0, got {cap!r}")
+    if isinstance(cap, (str, bytes, dict, bool)):
+        raise bad
+    try:
+        items = list(cap)
+    except TypeError:
+        raise bad from None
+    if len(items) != 2 or any(isinstance(v, (bool, np.bool_)) for v in items):
+        raise bad
+    try:
+        mult, floor = (float(v) for v in items)
+    except (TypeError, ValueError):
+        raise bad from None
+    if not (mult >= 0 and floor >= 0):        # rejects NaN too
+        raise bad
+    return mult, floor
 
 
 def _left(budget, spent) -> float:
@@ -258,8 +280,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
     stopping early, default 2), ``candidate_cap`` (per-axis: after the first verified extremal reached along a
-    smoothing path, a later candidate's path stops after ``max(multiple × that path's
-    propagations, floor)`` propagations;
+    built-in candidate's smoothing path, each later candidate's attempt stops after
+    ``max(multiple × the first attempt's propagations, floor)`` propagations;
     default ``(2, 200)``, ``None`` for no cap), ``seed`` (for the perturbed candidates, default 0),
     ``time_budget`` (s, default 20; ``method="collocation"``: 60, as ``solve_collocation``) is
     the whole solve's: every stage gets what is left of it and stops at its next check (between
@@ -304,6 +326,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
             v = options[key]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v > 0) or not math.isfinite(v):
                 raise ValueError(f"{key}: must be a positive number of seconds, got {v!r}")
+    if options.get("candidate_cap") is not None:
+        options["candidate_cap"] = _checked_cap(options["candidate_cap"])
     use_table = options.pop("singular_table", True)
     if not isinstance(use_table, bool):
         raise ValueError(f"singular_table: expected True or False, got {use_table!r}")
@@ -1348,13 +1372,8 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     cap = options.get("candidate_cap", CANDIDATE_CAP)
     if cap is not None:
-        try:
-            cap_mult, cap_floor = (float(c) for c in cap)
-        except (TypeError, ValueError):
-            raise ValueError(f"candidate_cap: must be None or a pair (multiple, floor), got {cap!r}") from None
-        if not (cap_mult > 0 and cap_floor >= 0):
-            raise ValueError(f"candidate_cap: the multiple must be > 0 and the floor >= 0, got {cap!r}")
-    first_nfev = None       # propagations of the first verified candidate
+        cap_mult, cap_floor = _checked_cap(cap)
+    first_nfev = None       # propagations of the first verified built-in candidate's attempt
 
     nit = nfev = 0
     tried = 0
@@ -1372,6 +1391,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         # structure templates, model guesses (learned, nearest-neighbour) and the KKT costates of
         # a switch-time optimisation carry a full switching structure: straight to the
         # switch-time Newton, no smoothing path
+        path_cost = 0
         if per_axis and st is not None and src.startswith(("template", "learned", "nearest", "switch-time")):
             a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}")
             if a.success and segments > 1:
@@ -1381,6 +1401,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
                                     T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf,
                                     max_nfev=(max(cap_mult * first_nfev, cap_floor)
                                               if cap is not None and first_nfev is not None else math.inf))
+            path_cost = a.nfev if a.route.startswith("tanh continuation") else 0
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
@@ -1403,10 +1424,12 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             failures.append(f"{src}: {text}")
             continue
         found.append((a.T, a, tr, checks, src))
-        # the reference is a smoothing path's cost: a switch-time Newton from a full
-        # structure (a template: ~10 propagations) says nothing about how long a path needs
-        if first_nfev is None and a.route.startswith("tanh continuation"):
-            first_nfev = a.nfev
+        # the reference is the cost of a built-in candidate's smoothing path (as measured:
+        # a switch-time Newton from a full structure, ~10 propagations for a template, says
+        # nothing about how long a path needs; a user's, a model's or collocation's guess
+        # was not measured and does not set it)
+        if first_nfev is None and path_cost > 0 and src.startswith("eigenaxis"):
+            first_nfev = path_cost
         if first_verified and not (a.T > baseline * (1 + 1e-7)):
             break
         if len(found) >= enough and tried >= min_candidates:

@@ -80,6 +80,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         return PathResult(False, points, nit, nfev, f"no solution at the start of the path ({r.message})")
     z, T = r.p, r.T
     points.append(PathPoint(cur, z, T))
+    why = exhausted(nfev) if exhausted is not None else None
+    if why:
+        return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
     if visit(points[-1]):
         return PathResult(True, points, nit, nfev, "stopped early")
     f = factor
@@ -102,6 +105,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         if r.success and r.T > 0:
             cur, z, T = nxt, r.p, r.T
             points.append(PathPoint(cur, z, T))
+            why = exhausted(nfev) if exhausted is not None else None
+            if why:
+                return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
             if visit(points[-1]):
                 return PathResult(True, points, nit, nfev, "stopped early")
             f = min(factor, f * 1.5)

@@ -107,8 +107,9 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
     eigenaxis slew, nondimensional) is kept only as a fallback and the path goes on:
     it is a local optimum, and the smaller ε points usually lead to the better one.
     The path starts at the first of ``eps_starts`` where Newton converges.
-    ``max_nfev``: the attempt stops once it has made about that many propagations (checked
-    between Newton solves), keeping an extremal it found before.
+    ``max_nfev``: the attempt (the guess's switch-time solve, the path and the switch-time
+    solves along it) stops once it has made more than that many propagations, checked before
+    each Newton solve (one solve may overrun it), keeping an extremal it found before.
     """
     nit = nfev = 0
     path_nfev = 0       # the running path's propagations, as last reported to over_cap
@@ -158,6 +159,8 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
     path = None
     for eps0 in eps_starts:
         path_nfev = 0
+        if over_cap(0):         # the guess's own switch-time solve or a failed start used it up
+            break
         path = continue_path(bvp, z, T, eps0 * scale, eps_min * scale, set_param=set_tanh, on_point=try_point,
                              stall=SMOOTHING_STALL, deadline=deadline,
                              exhausted=over_cap if max_nfev < math.inf else None)
@@ -170,11 +173,12 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         a = found["best"]
         a.nit, a.nfev = nit, nfev
         return a
+    if path is None or capped:
+        where = f" (eps = {path.points[-1].param:.3g})" if path is not None and path.points else ""
+        return Attempt(False, z, T, None, nit, nfev, "tanh continuation",
+                       f"stopped at its cap of {max_nfev:g} propagations{where}")
     if not path.success:
         return Attempt(False, z, T, None, nit, nfev, "tanh continuation", path.message)
-    if capped:
-        return Attempt(False, z, T, None, nit, nfev, "tanh continuation",
-                       f"stopped at its cap of {max_nfev:g} propagations (eps = {path.points[-1].param:.3g})")
     last = path.points[-1]
     msg = (f"no bang-bang structure near the smoothed extremal (eps = {last.param:.3g}, "
            f"tf = {last.T * bvp.tau:.9g})" + singular_diagnosis(bvp, last.z, last.T, last.param))

@@ -56,13 +56,17 @@ def test_capped_attempt_fails_with_the_cap_in_its_message():
     assert same.success and same.T == free.T and same.nfev == free.nfev
 
 
-def test_default_cap_returns_the_uncapped_answer_with_fewer_propagations():
+def _bench_problems(monkeypatch, n, seed):
+    import os
+    monkeypatch.syspath_prepend(os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    from bench_solver import random_problems
+    return random_problems(n, seed, math.inf)
+
+
+def test_default_cap_returns_the_uncapped_answer_with_fewer_propagations(monkeypatch):
     # bench_solver seed 1, problem 3: the long-way candidate's path runs ~3x longer than the
     # eigenaxis candidate's and ends in a slower extremal (2.7367 s against 1.76519 s)
-    import sys, os
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
-    from bench_solver import random_problems
-    p = random_problems(4, 1, math.inf)[3]
+    p = _bench_problems(monkeypatch, 4, 1)[3]
     capped = solvers.solve(p, method="indirect", warm_start=None)
     free = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=None)
     assert capped.success and free.success
@@ -71,27 +75,44 @@ def test_default_cap_returns_the_uncapped_answer_with_fewer_propagations():
     assert capped.nfev < 0.8 * free.nfev     # 6,988 against 9,303 propagations
 
 
+ALL = dict(max_candidates=16, min_candidates=16, enough=99)    # every candidate runs (templates: no path)
+
+
 def test_tiny_cap_keeps_the_first_verified_answer():
     p = _problem()
     first = solvers.solve(p, method="indirect", warm_start=None, max_candidates=1)
-    tiny = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=(1e-9, 0.0), max_candidates=6)
-    assert first.success and tiny.success and tiny.n_candidates == 6
+    tiny = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=[0, 0], **ALL)
+    free = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=None, **ALL)
+    assert first.success and tiny.success and tiny.n_candidates == free.n_candidates == 16
     assert tiny.tf <= first.tf * (1 + 1e-9)
+    # every later path stops at its first check: far fewer propagations than uncapped
+    assert tiny.nfev < free.nfev
+    assert tiny.nfev - first.nfev < 0.5 * (free.nfev - first.nfev)
+    # a numpy pair is accepted too
+    arr = solvers.solve(p, method="indirect", warm_start=None, candidate_cap=np.array([0.0, 0.0]), **ALL)
+    assert arr.tf == tiny.tf and arr.nfev == tiny.nfev
 
 
-@pytest.mark.parametrize("bad", [0.5, (2.0,), (0.0, 100), (2.0, -1), ("a", 1), (float("nan"), 100)])
+BAD_CAPS = [0.5, (2.0,), (2.0, 200, 1), (-1.0, 100), (2.0, -1), ("a", 1), (float("nan"), 100), "25", b"25",
+            {2: 0, 200: 1}, (True, 200), (2.0, None)]
+
+
+@pytest.mark.parametrize("bad", BAD_CAPS)
 def test_bad_candidate_cap_is_a_clear_error(bad):
-    with pytest.raises(ValueError, match="candidate_cap"):
+    with pytest.raises(ValueError, match="candidate_cap: must be None or a pair"):
         solvers.solve(_problem(), method="indirect", warm_start=None, candidate_cap=bad)
 
 
-def test_a_template_answer_does_not_set_the_cap():
+@pytest.mark.parametrize("method", ["eigenaxis", "collocation", "auto"])
+def test_bad_candidate_cap_is_caught_whatever_the_route(method):
+    with pytest.raises(ValueError, match="candidate_cap"):
+        solvers.solve(_problem(), method=method, candidate_cap="garbage")
+
+
+def test_a_template_answer_does_not_set_the_cap(monkeypatch):
     # bench_solver seed 3, problem 34: the first verified extremal comes from a structure
     # template's switch-time Newton (11 propagations, 3.25294 s); capping the paths after it
     # at 200 propagations stopped the long-way path (661) that finds the optimum, 3.08081 s
-    import sys, os
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
-    from bench_solver import random_problems
-    p = random_problems(35, 3, math.inf)[34]
+    p = _bench_problems(monkeypatch, 35, 3)[34]
     sol = solvers.solve(p, method="indirect", warm_start=None)
     assert sol.success and sol.tf == pytest.approx(3.080808962427157, rel=1e-9)
