@@ -116,3 +116,13 @@ def test_a_template_answer_does_not_set_the_cap(monkeypatch):
     p = _bench_problems(monkeypatch, 35, 3)[34]
     sol = solvers.solve(p, method="indirect", warm_start=None)
     assert sol.success and sol.tf == pytest.approx(3.080808962427157, rel=1e-9)
+
+
+def test_multiple_shooting_takes_the_cap_and_keeps_the_answer(monkeypatch):
+    # the reference is the path's cost before the multiple-shooting polish
+    p = _bench_problems(monkeypatch, 4, 1)[3]
+    capped = solvers.solve(p, method="multiple-shooting", warm_start=None)
+    free = solvers.solve(p, method="multiple-shooting", warm_start=None, candidate_cap=None)
+    assert capped.success and free.success and capped.method == "multiple-shooting"
+    assert capped.tf == pytest.approx(free.tf, rel=1e-9)
+    assert capped.nfev < free.nfev
