@@ -35,8 +35,8 @@ perturbations — and returns the best verified one.
 It stops when ``max_candidates`` have been tried; or, once ``min_candidates`` have
 been tried, when ``enough`` have converged and the best final time was reached by at
 least two of them; or when the ``time_budget`` runs out. After the first verified extremal
-reached along a smoothing path, a per-axis candidate's path stops at ``candidate_cap``
-(``CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
+reached along a built-in candidate's smoothing path, each later per-axis candidate's attempt
+stops at ``candidate_cap`` (``CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
 how many it tried. A multi-start is no proof of global optimality: on random problems the
 collocation-first route of ``"auto"`` found a faster extremal than the classical multi-start
 in about 1 case in 13.

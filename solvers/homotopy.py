@@ -43,8 +43,9 @@ def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1
     criterion (``newton_shoot``): a step whose Newton stalls is retried shorter at once.
     ``deadline`` (``time.perf_counter()`` value): checked before each step; past it the path
     stops and fails (its points so far are returned). ``exhausted(nfev) -> str | None``: a
-    further budget, checked at the same places with the path's propagations so far; a text
-    stops the path, which fails with that text as its message.
+    further budget, checked before each step and after each Newton solve (before ``on_point``)
+    with the path's propagations so far; a text stops the path, which fails with that text as
+    its message.
     """
     # the path's points are stepping stones: integrate them more loosely than answers
     saved_tol = (bvp.rtol, bvp.atol)
@@ -69,6 +70,11 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         finally:
             bvp.rtol, bvp.atol = loose
 
+    def out_of_budget():
+        # the caller's further budget (``exhausted``), as the path's failure, or None
+        why = exhausted(nfev) if exhausted is not None else None
+        return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})") if why else None
+
     points = []
     nit = nfev = 0
     cur = start
@@ -80,9 +86,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         return PathResult(False, points, nit, nfev, f"no solution at the start of the path ({r.message})")
     z, T = r.p, r.T
     points.append(PathPoint(cur, z, T))
-    why = exhausted(nfev) if exhausted is not None else None
-    if why:
-        return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
+    stop_ = out_of_budget()
+    if stop_ is not None:
+        return stop_
     if visit(points[-1]):
         return PathResult(True, points, nit, nfev, "stopped early")
     f = factor
@@ -94,9 +100,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
             return PathResult(False, points, nit, nfev, "too many continuation steps")
         if time.perf_counter() > deadline:
             return PathResult(False, points, nit, nfev, f"time budget exhausted (continuation at {cur:g})")
-        why = exhausted(nfev) if exhausted is not None else None
-        if why:
-            return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
+        stop_ = out_of_budget()
+        if stop_ is not None:
+            return stop_
         nxt = max(cur / f, stop) if down else min(cur * f, stop)
         set_param(bvp, nxt)
         r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)
@@ -105,9 +111,9 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
         if r.success and r.T > 0:
             cur, z, T = nxt, r.p, r.T
             points.append(PathPoint(cur, z, T))
-            why = exhausted(nfev) if exhausted is not None else None
-            if why:
-                return PathResult(False, points, nit, nfev, f"{why} (continuation at {cur:g})")
+            stop_ = out_of_budget()
+            if stop_ is not None:
+                return stop_
             if visit(points[-1]):
                 return PathResult(True, points, nit, nfev, "stopped early")
             f = min(factor, f * 1.5)

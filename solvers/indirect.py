@@ -113,13 +113,13 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
     """
     nit = nfev = 0
     path_nfev = 0       # the running path's propagations, as last reported to over_cap
-    capped = []
+    capped = False
 
     def over_cap(n_path):
-        nonlocal path_nfev
+        nonlocal path_nfev, capped
         path_nfev = n_path
         if nfev + n_path > max_nfev:
-            capped.append(True)
+            capped = True
             return f"stopped at its cap of {max_nfev:g} propagations"
         return None
 
