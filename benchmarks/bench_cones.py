@@ -3,8 +3,9 @@
 Draws N problems from the environment's ``pointing-cones`` family (seeded) and solves each
 with ``method="collocation"``, ``"indirect"`` and ``"auto"``; prints, per method, the
 verified success rate (and how many answers are exact extremals: ``auto`` and ``indirect``
-refine problems whose cones are inactive; and how many are the ``indirect`` route's penalised
-extremals, for active cones), median / 95th-percentile wall time, median final time, the worst
+refine problems whose cones are inactive; how many are the ``indirect`` route's penalised
+extremals, for active cones, and how many ``auto``'s bang-bang switch-time slews, where the path
+rides a cone), median / 95th-percentile wall time, median final time, the worst
 cone clearance of the verified answers, and the ratio of each method's time to
 collocation's on the same problems.
 
@@ -54,9 +55,10 @@ def main(argv=None):
                                 s.verification.get("cone_clearance", {}).get("value", np.nan), "",
                                 s.exact, "penalty homotopy" in s.route,
                                 bool(s.warm_start.get("won") if s.warm_start.get("role") == "challenger"
-                                     else s.warm_start.get("succeeded"))))
+                                     else s.warm_start.get("succeeded")), s.method == "switch-time"))
             except ValueError as e:   # the indirect route declines cones (clear error)
-                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False, False, False))
+                rows[m].append((False, time.perf_counter() - t0, np.nan, np.nan, str(e)[:60], False, False, False,
+                                False))
         print(f"\r{k + 1}/{len(probs)}", end="", file=sys.stderr)
     print(file=sys.stderr)
     ncones = [len(p.cones) for p in probs]
@@ -74,8 +76,9 @@ def main(argv=None):
         clr = np.array([x[3] for x in r])
         exact = int(sum(x[5] for x in r))
         pen = int(sum(x[0] and x[6] for x in r))
+        bang = int(sum(x[0] and x[8] for x in r))
         line = (f"  {m:12s} verified {ok.sum():3d}/{len(r)} = {100 * ok.mean():5.1f} % ({exact} exact extremals"
-                + (f", {pen} penalised" if pen else "") + ")")
+                + (f", {pen} penalised" if pen else "") + (f", {bang} switch-time" if bang else "") + ")")
         if ok.any():
             line += (f"   wall median {1e3 * np.median(t[ok]):7.1f} ms  p95 {1e3 * np.percentile(t[ok], 95):7.1f} ms"
                      f"   tf median {np.median(tf[ok]):.5f}"

@@ -1058,6 +1058,14 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
                 free.wall_time = spent()
                 return free
         settle_tf_tol(col, budget - spent())
+        # a path that rides a cone (or a singular arc): a bang-bang slew with collocation's
+        # sequence and optimised switch times, the cones imposed, reaches the target exactly
+        # and is flown by its switch times; collocation's answer is not
+        bang = _bang_bang_cones(prob, col, options, budget - spent())
+        if bang is not None:
+            bang.route = f"auto: collocation ({col.route}; {col.wall_time:.3g} s; no exact extremal near it) → {bang.route}"
+            bang.wall_time = spent()
+            return bang
         col.route = f"auto: collocation ({col.route})"
         col.wall_time = spent()
         return col
@@ -1121,6 +1129,13 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             bang.route = f"auto: collocation ({col.wall_time:.3g} s; {why[:250]}) → {bang.route}"
             bang.wall_time = spent()
             return bang
+        if prob.qf is None:
+            # a pointing target: the switch-time optimisation that leaves the roll free
+            bang = _bang_bang_cones(prob, col, options, budget - spent())
+            if bang is not None:
+                bang.route = f"auto: collocation ({col.wall_time:.3g} s; {why[:250]}) → {bang.route}"
+                bang.wall_time = spent()
+                return bang
         if ref is None and budget - spent() > 0.05:
             # a singular arc in sight but no bang-bang answer: the exact refinement after all
             ref, accepted, why_ref = refine("; no switch-time answer")
@@ -1243,6 +1258,15 @@ def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=F
                   f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
                   f"{free.route}")
     return free
+
+
+def _bang_bang_cones(prob, col, options, left):
+    """``switch_time_cones.bang_bang_cone_answer`` within ``min(BANG_BANG_BUDGET, left)`` (``None``
+    when less than 50 ms are left, or it gives nothing)."""
+    if not col.success or left <= 0.05:
+        return None
+    from .switch_time_cones import bang_bang_cone_answer
+    return bang_bang_cone_answer(prob, col, time_budget=min(BANG_BANG_BUDGET, left), tols=options.get("tols"))
 
 
 def settle_tf_tol(sol, budget) -> None:

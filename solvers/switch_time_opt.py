@@ -76,19 +76,8 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     if bvp.problem.cones:
         raise ValueError(f"cones: switch-time optimisation does not impose keep-out cones "
                          f"({len(bvp.problem.cones)} given)")
-    axes = np.asarray(axes).ravel()
-    times = np.asarray(times, dtype=float).ravel()
-    signs0 = np.asarray(signs0, dtype=float).ravel()
-    if signs0.shape != (3,) or not np.all(np.abs(signs0) == 1.0):
-        raise ValueError(f"signs0: expected the 3 signs (±1) of the first arcs, got {signs0.tolist()}")
-    if axes.shape != times.shape:
-        raise ValueError(f"axes, times: one axis per switch instant, got {axes.size} axes and {times.size} times")
-    if axes.size and not (np.issubdtype(axes.dtype, np.integer) and np.all((axes >= 0) & (axes <= 2))):
-        raise ValueError(f"axes: switch axes must be 0, 1 or 2, got {axes.tolist()}")
-    if not (math.isfinite(float(T)) and float(T) > 0.0) or not np.all(np.isfinite(times)):
-        raise ValueError(f"T, times: need a positive final time and finite switch instants, got T={T}")
+    signs0, axes, times = checked_sequence(signs0, axes, times, T)
     bvp.set_mode("bang")
-    axes = axes.astype(np.int64)
     n = axes.shape[0]
     y0 = _start_state(bvp)
     t_start = time.perf_counter()
@@ -108,22 +97,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
             cache[key] = out
         return cache[key]
 
-    # linear inequalities: each axis's switches in order, 0 ≤ t_k ≤ T
-    rows = []
-    for a in range(3):
-        idx = np.flatnonzero(axes == a)
-        for i0, i1 in zip(idx, idx[1:]):
-            row = np.zeros(n + 1)
-            row[i1], row[i0] = 1.0, -1.0
-            rows.append(row)
-    for j in range(n):
-        row = np.zeros(n + 1)
-        row[j] = 1.0
-        rows.append(row)
-        row = np.zeros(n + 1)
-        row[n], row[j] = 1.0, -1.0
-        rows.append(row)
-    A = np.array(rows) if rows else np.zeros((0, n + 1))
+    A = order_constraints(axes)
     e_T = np.zeros(n + 1)
     e_T[n] = 1.0
     v0 = np.concatenate([np.clip(np.asarray(times, float), 0.0, T), [T]])
@@ -196,6 +170,43 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     ok = fail is None
     return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), v[:n][keep].copy(), axes[keep].copy(), signs0,
                                resid, stats["nit"], stats["nfev"], z, kkt, converged)
+
+
+def checked_sequence(signs0, axes, times, T):
+    """``(signs0, axes, times)`` as float, int64 and float arrays, or a ``ValueError`` naming the
+    argument: 3 signs ±1, one axis (0, 1 or 2) per finite switch instant, a positive ``T``."""
+    axes = np.asarray(axes).ravel()
+    times = np.asarray(times, dtype=float).ravel()
+    signs0 = np.asarray(signs0, dtype=float).ravel()
+    if signs0.shape != (3,) or not np.all(np.abs(signs0) == 1.0):
+        raise ValueError(f"signs0: expected the 3 signs (±1) of the first arcs, got {signs0.tolist()}")
+    if axes.shape != times.shape:
+        raise ValueError(f"axes, times: one axis per switch instant, got {axes.size} axes and {times.size} times")
+    if axes.size and not (np.issubdtype(axes.dtype, np.integer) and np.all((axes >= 0) & (axes <= 2))):
+        raise ValueError(f"axes: switch axes must be 0, 1 or 2, got {axes.tolist()}")
+    if not (math.isfinite(float(T)) and float(T) > 0.0) or not np.all(np.isfinite(times)):
+        raise ValueError(f"T, times: need a positive final time and finite switch instants, got T={T}")
+    return signs0, axes.astype(np.int64), times
+
+
+def order_constraints(axes):
+    """``A`` with ``A @ [times, T] ≥ 0``: each axis's switches in order, ``0 ≤ t_k ≤ T``."""
+    n = axes.shape[0]
+    rows = []
+    for a in range(3):
+        idx = np.flatnonzero(axes == a)
+        for i0, i1 in zip(idx, idx[1:]):
+            row = np.zeros(n + 1)
+            row[i1], row[i0] = 1.0, -1.0
+            rows.append(row)
+    for j in range(n):
+        row = np.zeros(n + 1)
+        row[j] = 1.0
+        rows.append(row)
+        row = np.zeros(n + 1)
+        row[n], row[j] = 1.0, -1.0
+        rows.append(row)
+    return np.array(rows) if rows else np.zeros((0, n + 1))
 
 
 def _start_state(bvp):
@@ -320,7 +331,14 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
     t0 = time.perf_counter()
     if not col.success or not switch_time_applies(problem) or col.switch_times is None or len(col.t) < 2:
         return None, None
-    bvp = AttitudeBVP(problem)
+    return answer_from_collocation(problem, col, AttitudeBVP(problem), optimise_switch_times, time_budget, tols,
+                                   SLSQP_ITERATIONS, t0)
+
+
+def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_iter, t0):
+    """``(answer, kkt_guess)`` of ``bang_bang_answer`` with the optimiser ``optimise`` (this
+    module's, or ``switch_time_cones``' with the cones imposed), ``(None, None)`` when nothing
+    is verified or it is slower than ``col`` beyond ``col.tf_tol``."""
     tau = bvp.tau
     sw = [np.asarray(s, float) / tau for s in col.switch_times]
     # more pulse pairs approximate a singular arc better: rounds with more, the fastest kept,
@@ -332,8 +350,7 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
             break
         signs0, axes, times = sequence_from_samples(np.asarray(col.t) / tau, col.u, problem.torque_max, sw,
                                                     col.u_first, extra_pairs=extra)
-        ri = optimise_switch_times(problem, signs0, axes, times, col.tf / tau, time_budget=left,
-                                   max_iter=SLSQP_ITERATIONS, bvp=bvp)
+        ri = optimise(problem, signs0, axes, times, col.tf / tau, time_budget=left, max_iter=max_iter, bvp=bvp)
         if not ri.success:
             continue
         if r is not None and ri.T > r.T * (1.0 - 1e-6):
@@ -431,6 +448,7 @@ def _answer(problem, bvp, r, tols, what, route_tail, comparison, tf_tol_of, fall
     ``route_tail`` after it), ``comparison`` ends the message; ``tf_tol_of(attitude/rate miss)``
     gives its ``tf_tol``; ``fallback_costate0`` is reported when the iterate is not a KKT point (``None``:
     the multipliers' costates all the same, an estimate, or NaN when they give no normal costate)."""
+    from .clearance import CLEARANCE_TOL, certified_replay
     from .guesses import Guess
     from .solution import STATUS_SUCCESS, SlewSolution
     from .verify import (DEFAULT_TOLS, boundary_checks, end_error, failure_text, make_check, rate_limit_check,
@@ -443,11 +461,18 @@ def _answer(problem, bvp, r, tols, what, route_tail, comparison, tf_tol_of, fall
     if end is None:
         return None, None
     checks = boundary_checks(bvp, end[0], tols)
+    # (a pointing target's roll transversality is a costate condition of extremals: not checked
+    # on a bang-bang answer, whose costates are not an extremal's)
+    checks.pop("roll_transversality", None)
     att = checks["boundary_attitude_error"]["value"]
     t_nd, x = replay_path(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw_nd, r.signs0, r.T)
     rep = end_error(bvp, x[-1])
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
     checks.update(rate_limit_check(bvp, x, tols))
+    if problem.cones:
+        # certified at every instant on an RK4 replay of the switch times (finer where needed)
+        cert = certified_replay(problem, [s * bvp.tau for s in sw_nd], r.signs0, r.T * bvp.tau)[2]
+        checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
     if failure_text(checks):
         return None, None
     tf = r.T * tau
@@ -498,8 +523,8 @@ def _answer(problem, bvp, r, tols, what, route_tail, comparison, tf_tol_of, fall
 
 
 STATUS_MESSAGES_SUCCESS_BANG = ("Verified bang-bang slew with optimised switch times (not an extremal: the "
-                                "optimum has a singular arc or was not refined exactly, so tf is an upper "
-                                "bound on the optimal time, which tf_tol estimates).")
+                                "optimum has a singular arc, rides a keep-out cone or was not refined exactly, "
+                                "so tf is an upper bound on the optimal time, which tf_tol estimates).")
 # KKT residual below which the multipliers are reported as costates
 KKT_TOL = 1e-6
 

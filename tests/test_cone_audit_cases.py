@@ -7,12 +7,17 @@ from solvers.clearance import margins
 
 
 def _fly(sol, n=40000):
-    """The returned torque history at the midpoint of each of n steps, environment RK4."""
+    """The returned torque history at the midpoint of each of n steps, environment RK4, with
+    the answer's switch instants as step boundaries too (a step across a switch would hold one
+    torque through it: for a bang-bang answer with 13 switches that alone put the flown path
+    1.3e-5 rad into the cone at n = 40,000, 3e-6 at 160,000)."""
     p = sol.problem
-    ts = np.linspace(0.0, sol.tf, n + 1)
+    ts = np.unique(np.concatenate([np.linspace(0.0, sol.tf, n + 1)]
+                                  + [np.asarray(s, float) for s in sol.switch_times]))
+    ts = ts[ts <= sol.tf]
     x = np.concatenate([p.q0, p.omega0])
     xs = [x]
-    for k in range(n):
+    for k in range(len(ts) - 1):
         x = propagate(x, sol.control(0.5 * (ts[k] + ts[k + 1])), p.inertia, ts[k + 1] - ts[k], 1)[-1]
         xs.append(x)
     return np.array(xs)

@@ -112,3 +112,31 @@ def penalty_jac_into(y, pen, A):
             for i in range(4):
                 for j in range(4):
                     A[7 + i, j] -= 2.0 * w * (h * pen[o + 4 * i + j] + 2.0 * Mq[i] * Mq[j])
+
+
+@njit(cache=True)
+def sampled_margins(X, dX, Ms, half):
+    """Clearance margins ``θ - α`` (rad; ``cos θ = qᵀMq / |q|²``) of each cone ``k`` (``Ms[k]``,
+    ``half[k]``) at each sampled state ``X[m]`` (7: ``q`` first), and their gradients in the
+    unknowns through ``dX[m] = ∂x/∂v`` (7, nv): ``(g (M·K,), Jg (M·K, nv))``, row ``m·K + k``."""
+    M = X.shape[0]
+    K = Ms.shape[0]
+    nv = dX.shape[2]
+    g = np.empty(M * K)
+    Jg = np.zeros((M * K, nv))
+    for m in range(M):
+        q = X[m, 0:4]
+        qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+        for k in range(K):
+            Mq = Ms[k] @ q
+            c = (q[0] * Mq[0] + q[1] * Mq[1] + q[2] * Mq[2] + q[3] * Mq[3]) / qq
+            c = min(1.0, max(-1.0, c))
+            s = max(np.sqrt(1.0 - c * c), 1e-12)
+            row = m * K + k
+            g[row] = np.arccos(c) - half[k]
+            # ∂θ/∂q = -∂c/∂q / sin θ, ∂c/∂q = 2 (Mq - c q) / |q|²
+            for j in range(4):
+                dj = -2.0 * (Mq[j] - c * q[j]) / (qq * s)
+                for col in range(nv):
+                    Jg[row, col] += dj * dX[m, j, col]
+    return g, Jg

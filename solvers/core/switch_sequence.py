@@ -33,6 +33,22 @@ def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
 
 
 @njit(cache=True)
+def _arc_transition(y, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
+    """One arc of fixed ``signs`` over ``dt`` from the augmented state ``y``, with the state's
+    7×7 transition matrix when ``m`` is 7 (zeros when 0): ``(y(dt), Φ, ok)``."""
+    Y0 = np.zeros(NY + NY * m)
+    Y0[:NY] = y
+    for c in range(m):
+        Y0[NY + c * m + c] = 1.0
+    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+    Phi = np.zeros((7, 7))
+    for i in range(m):
+        for c in range(m):
+            Phi[i, c] = Y[NY + i * m + c]
+    return Y[:NY].copy(), Phi, ok
+
+
+@njit(cache=True)
 def _finite_times(times, T):
     """Whether ``T`` and every switch instant are finite (an iterate may not be)."""
     if not np.isfinite(T):
@@ -136,18 +152,12 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
         raw = T if kk == n else times[order[kk]]
         tk = min(max(raw, 0.0), T)
         if tk > t:
-            Y0 = np.zeros(NY + NY * m)
-            Y0[:NY] = y
-            for c in range(m):
-                Y0[NY + c * m + c] = 1.0
-            Y, ok = _fixed_arc(Y0, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
             nfev += 1
             if not ok:
                 return y, dx, M, nfev, False
-            y = Y[:NY].copy()
-            for i in range(m):
-                for c in range(m):
-                    mats[kk, i, c] = Y[NY + i * m + c]
+            if want_jac:
+                mats[kk] = Phi
             t = tk
         elif want_jac:
             for i in range(7):
@@ -172,3 +182,78 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
             dx[i, n] = f[i]
         M = G @ mats[0]
     return y, dx, M, nfev, True
+
+
+@njit(cache=True)
+def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, rtol, atol, pen):
+    """The states of a bang-bang control with switches at fixed instants at the sample instants
+    ``fracs · T`` (``fracs`` sorted, in [0, 1]), and their derivatives in ``[times, T]``, for
+    path constraints (keep-out cones) in switch-time optimisation.
+
+    Forward sensitivities: ``G = ∂x/∂[times, T]`` (7, n + 1) rides along the arcs
+    (``G ← Φ G``); a switch ``k`` adds its jump ``f⁻ - f⁺`` to column ``k``; at a sample
+    ``x(s T)`` the ``T`` column is ``s f(x)`` (the instant moves with ``T``; the switches do
+    not). Switch instants are clipped to ``[0, T]`` as in ``sequence_end``.
+
+    Returns ``(X (M, 7), dX (M, 7, n + 1), y(T), dx (7, n + 1), nfev, ok)``.
+    """
+    n = times.shape[0]
+    M = fracs.shape[0]
+    X = np.zeros((M, 7))
+    dX = np.zeros((M, 7, n + 1))
+    dx = np.zeros((7, n + 1))
+    if not _finite_times(times, T):
+        return X, dX, y0.copy(), dx, 0, False
+    # merged events: switches (kind 0, index j) and samples (kind 1, index m), by time
+    ev_t = np.empty(n + M)
+    ev_k = np.empty(n + M, dtype=np.int64)
+    ev_i = np.empty(n + M, dtype=np.int64)
+    for j in range(n):
+        ev_t[j] = min(max(times[j], 0.0), T)
+        ev_k[j] = 0
+        ev_i[j] = j
+    for m in range(M):
+        ev_t[n + m] = fracs[m] * T
+        ev_k[n + m] = 1
+        ev_i[n + m] = m
+    order = np.argsort(ev_t, kind="mergesort")
+    G = np.zeros((7, n + 1))
+    signs = signs0.copy()
+    y = y0.copy()
+    t = 0.0
+    nfev = 0
+    for kk in range(n + M + 1):
+        e = order[kk] if kk < n + M else -1
+        tk = T if e < 0 else ev_t[e]
+        if tk > t:
+            y, Phi, ok = _arc_transition(y, tk - t, 7, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            nfev += 1
+            if not ok:
+                return X, dX, y, dx, nfev, False
+            G = Phi @ G
+            t = tk
+        if e < 0:
+            break
+        if ev_k[e] == 1:
+            m = ev_i[e]
+            f = ext_rhs(y, umax * signs, J)
+            for i in range(7):
+                X[m, i] = y[i]
+                for c in range(n):
+                    dX[m, i, c] = G[i, c]
+                dX[m, i, n] = fracs[m] * f[i]
+            continue
+        j = ev_i[e]
+        raw = times[j]
+        a = axes[j]
+        if raw >= T:
+            continue
+        if raw > 0.0:
+            G[4 + a, j] += 2.0 * signs[a] * umax[a] / J[a]
+        signs[a] = -signs[a]
+    f = ext_rhs(y, umax * signs, J)
+    for i in range(7):
+        for c in range(n):
+            dx[i, c] = G[i, c]
+        dx[i, n] = f[i]
+    return X, dX, y, dx, nfev, True

@@ -1,0 +1,296 @@
+"""Bang-bang switch-time optimisation with keep-out cones and pointing-only targets.
+
+Where a slew's optimal path rides a keep-out cone's boundary (or has a singular arc), no
+exact bang-bang extremal exists, and ``auto``'s answer was collocation's piecewise quadratic
+control: its switch times, flown as a bang-bang control, miss the target, and its own control
+misses it by its discretisation error. This module gives those problems (per-axis bound) a
+bang-bang answer that reaches the target exactly and keeps out of the cones at every instant:
+
+    minimise  tf   over the switch instants t_1 … t_n and tf,
+    subject to     the boundary conditions (6 for a full attitude; 5 for a pointing target:
+                   the sensor on the target (2) and the rates (3), the roll left free),
+                   each cone's clearance margin ≥ δ at the sample instants s_m · tf
+                   (δ = ``SAMPLE_MARGIN``, 5e-7 rad, or half the smaller end margin),
+                   each axis's switches in order, 0 ≤ t_k ≤ tf,
+
+for a fixed switching sequence (``switch_time_opt.sequence_from_samples``: collocation's sign
+changes, with zero-width pulse pairs on the axes whose torque is interior, where the path
+rides a cone). The states at the samples and their derivatives in the unknowns come from one
+compiled pass (``core.switch_sequence.sequence_samples``: forward transition matrices, with
+the jump ``f⁻ - f⁺`` at each switch), so the gradients are exact.
+
+The margin is constrained only at samples, so the answer is found by exchange: after each
+SLSQP solve, the local minima of the margin on a dense pass (4,000 instants) that come within
+``NEAR`` of a cone are added as samples (a cluster of ``CLUSTER`` one dense step apart), until no
+dense instant is inside a cone by more than ``DENSE_TOL``. The verification does not rely on the samples: the
+clearance is certified at every instant on an independent RK4 replay of the switch times
+(``clearance.certified_replay``, ≥ ``CLEARANCE_TOL``).
+
+A bang-bang path can only approximate a boundary arc (a control that holds the sensor on the
+cone is interior on some axis): the answer is feasible and exact to the last digit, and its
+``tf`` an upper bound on the optimal time. ``auto`` takes it when it is within the collocation
+answer's accuracy of it (``bang_bang_cone_answer``).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .attitude_bvp import AttitudeBVP
+from .core.attitude_flow import MODE_BANG
+from .core.cone_penalty import cone_matrix, sampled_margins
+from .core.switch_sequence import sequence_samples
+from .switch_time_opt import SwitchTimeOptResult, _start_state, checked_sequence, order_constraints
+
+BASE_SAMPLES = 64       # evenly spaced sample instants (fractions of tf) in the first round
+DENSE_SAMPLES = 4000    # the dense pass that finds the margin's minima between samples
+NEAR = 2e-3             # rad: a local minimum of the margin below this becomes a sample
+SAMPLE_MARGIN = 5e-7    # rad: the margin the samples keep from the cones
+DENSE_TOL = 1e-9        # rad: the dense pass's deepest point inside a cone that ends the exchange
+CLUSTER = 5             # samples around each near minimum of the margin
+POLISH_MARGIN = 1e-9    # rad: the margin the polish gives a violated sample
+EXCHANGE_ROUNDS = 5
+
+
+def _pointing_rows(bvp):
+    """Rows of ``bvp.terminal`` that constrain the state: all 6 for a full attitude; for a
+    pointing target the 2 pointing and 3 rate rows (row 2, the roll transversality, is a
+    costate condition of extremals)."""
+    return np.array([0, 1, 3, 4, 5]) if bvp.pointing else np.arange(6)
+
+
+def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=40,
+                                bvp=None) -> SwitchTimeOptResult:
+    """The fastest bang-bang slew of ``problem`` (per-axis bound; full-attitude or pointing
+    target; keep-out cones imposed) with the switching sequence ``(signs0, axes)``, from the
+    nondimensional instants ``times`` and final time ``T`` (module docstring). A rate limit is
+    not a constraint here (the caller checks it on the replay). ``z`` of the result is NaN:
+    with active cone constraints the multipliers are not an extremal's costates."""
+    from scipy.optimize import minimize
+    if not math.isinf(problem.torque_norm):
+        raise ValueError("torque_norm: switch-time optimisation is for the per-axis bound")
+    bvp = bvp if bvp is not None else AttitudeBVP(problem.replace(cones=()))
+    bvp.set_mode("bang")
+    signs0, axes, times = checked_sequence(signs0, axes, times, T)
+    n = axes.shape[0]
+    rows = _pointing_rows(bvp)
+    cones = list(problem.cones)
+    s_b = np.asarray(problem.sensor_axis, float)
+    Ms = np.array([cone_matrix(c.axis, s_b) for c in cones]).reshape(len(cones), 4, 4)
+    half = np.array([c.half_angle for c in cones], dtype=float)
+    y0 = _start_state(bvp)
+    # the samples keep SAMPLE_MARGIN off the cones (so that the margin between them stays
+    # positive), or half the smaller end margin where a start or target sits closer
+    ends = np.array([np.concatenate([bvp.q0, np.zeros(3)]), np.concatenate([bvp.qf, np.zeros(3)])])
+    end_margin = float(_margins(ends, (Ms, half)).min()) if cones else math.inf
+    keep_off = max(0.0, min(SAMPLE_MARGIN, 0.5 * end_margin))
+    args = (bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen)
+    t_start = time.perf_counter()
+    stats = {"nfev": 0, "nit": 0}
+    fracs = (np.arange(BASE_SAMPLES) + 0.5) / BASE_SAMPLES
+    cache = {}
+
+    def evaluate(v):
+        key = v.tobytes()
+        if key not in cache:
+            if time.perf_counter() - t_start > time_budget:
+                raise TimeoutError
+            X, dX, yT, dx, nfev, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0,
+                                                       fracs, *args)
+            stats["nfev"] += nfev
+            if not ok:
+                raise FloatingPointError("propagation failed")
+            r, D, _ = bvp.terminal(yT, float(v[n]))
+            D7 = D[rows, :7]
+            g, Jg = sampled_margins(X, dX, Ms, half)
+            cache.clear()
+            cache[key] = (r[rows], D7 @ dx, g - keep_off, Jg, yT)
+        return cache[key]
+
+    A = order_constraints(axes)
+    e_T = np.zeros(n + 1)
+    e_T[n] = 1.0
+    v = np.concatenate([np.clip(times, 0.0, T), [T]])
+    cons = [{"type": "eq", "fun": lambda v: evaluate(v)[0], "jac": lambda v: evaluate(v)[1]},
+            {"type": "ineq", "fun": lambda v: evaluate(v)[2], "jac": lambda v: evaluate(v)[3]}]
+    if A.shape[0]:
+        cons.append({"type": "ineq", "fun": lambda v: A @ v, "jac": lambda v: A})
+    best = None             # (v, note, converged, samples): the fastest feasible iterate so far
+    why = "no feasible iterate"
+    rnd = 0
+    try:
+        if cones:
+            # the start's own near contacts are sampled from the first round on
+            add, _ = _new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs)
+            fracs = np.unique(np.concatenate([fracs, add]))
+        # rounds: SLSQP, the feasibility polish, the dense pass; a feasible iterate is kept,
+        # and the next round starts from it (more samples where it entered a cone, or more
+        # iterations where SLSQP stopped at its limit) until a KKT point or the last round
+        for rnd in range(1, EXCHANGE_ROUNDS + 1):
+            res = minimize(lambda v: v[n], v, jac=lambda v: e_T, constraints=cons, method="SLSQP",
+                           bounds=[(0.0, 2.0 * T)] * n + [(0.5 * T, 2.0 * T)],
+                           options={"maxiter": max_iter, "ftol": 1e-13})
+            v = res.x
+            stats["nit"] += int(res.nit)
+            v = _polish(evaluate, v)
+            resid = float(np.linalg.norm(evaluate(v)[0]))
+            add, worst = (_new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs) if cones
+                          else (np.zeros(0), math.inf))
+            stats["nfev"] += DENSE_SAMPLES if cones else 0
+            feasible = resid < 1e-10 and worst >= -DENSE_TOL
+            if not resid < 1e-10:
+                why = f"boundary residual {resid:.2e} after the polish"
+            elif not feasible:
+                why = f"the path enters a cone by {-worst:.1e} rad between samples"
+            gain = math.inf if best is None else best[0][n] - v[n]
+            if feasible and gain > 0.0:
+                best = (v.copy(), "a KKT point" if res.success else f"SLSQP stopped ({res.message})",
+                        bool(res.success), fracs.size, resid)
+            # done at a feasible KKT point, when a further round gains less than 1e-7 of tf,
+            # or when an infeasible iterate gives no new sample
+            if feasible and (res.success or gain < 1e-7 * v[n]) or (not feasible and add.size == 0):
+                break
+            if add.size:
+                fracs = np.unique(np.concatenate([fracs, add]))
+                cache.clear()
+    except TimeoutError:
+        why = f"time budget ({time_budget:g} s) exhausted"
+    except FloatingPointError as e:
+        why = str(e)
+    if best is None:
+        return SwitchTimeOptResult(False, f"{why} (after {rnd} round(s))", float(v[n]), v[:n].copy(), axes, signs0,
+                                   math.inf, stats["nit"], stats["nfev"])
+    v, note, converged, n_samples, resid = best
+    note += f"; {n_samples} samples, {rnd} round(s)"
+    keep = v[:n] < v[n]
+    early = v[:n] <= 0.0
+    signs0 = signs0.copy()
+    for a in axes[keep & early]:
+        signs0[int(a)] = -signs0[int(a)]
+    keep &= ~early
+    return SwitchTimeOptResult(True, note, float(v[n]), v[:n][keep].copy(),
+                               axes[keep].copy(), signs0, resid, stats["nit"], stats["nfev"], np.full(6, np.nan),
+                               math.nan, converged)
+
+
+def _polish(evaluate, v):
+    """Minimum-norm Gauss-Newton steps onto the boundary conditions and the sampled cone
+    constraints that SLSQP left violated (at its iteration limit an iterate need not be
+    feasible): the violated samples are driven to a margin of ``POLISH_MARGIN``, the others
+    are left as they are. A step is taken only if it lowers the infeasibility."""
+    def infeasibility(out):
+        g = out[2]
+        return float(np.linalg.norm(out[0])) + float(np.maximum(0.0, -g).sum()) if g.size else \
+            float(np.linalg.norm(out[0]))
+
+    out = evaluate(v)
+    for _ in range(10):
+        r, Jr, g, Jg = out[0:4]
+        viol = g < 0.0
+        f = infeasibility(out)
+        if f < 1e-14:
+            break
+        A = np.vstack([Jr, Jg[viol]])
+        b = np.concatenate([r, g[viol] - POLISH_MARGIN])
+        step = np.linalg.lstsq(A, b, rcond=None)[0]
+        for frac in (1.0, 0.5, 0.25):       # backtracking: the constraints are nonlinear
+            vt = v - frac * step
+            try:
+                ot = evaluate(vt)
+            except FloatingPointError:
+                continue
+            if infeasibility(ot) < f:
+                break
+        else:
+            break
+        v, out = vt, ot
+    return v
+
+
+def _new_samples(y0, v, n, axes, signs0, args, cones, fracs):
+    """``(new fractions, deepest margin)``: around each local minimum of a cone's margin below
+    ``NEAR`` on the dense pass, a cluster of ``CLUSTER`` samples one dense step apart (the
+    minimum moves as the iterate does: the cluster keeps it between samples, where the margin
+    can dip below the samples' by at most ~|θ̈| h² / 8), not already sampled; and the smallest
+    margin seen."""
+    dense = np.linspace(0.0, 1.0, DENSE_SAMPLES)
+    X, *_, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0, dense, *args)
+    if not ok:
+        raise FloatingPointError("propagation failed on the dense pass")
+    g = _margins(X, cones)
+    worst = float(g.min())
+    h = dense[1] - dense[0]
+    new = []
+    for k in range(g.shape[1]):
+        m = g[:, k]
+        idx = np.flatnonzero((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < NEAR)) + 1
+        for i in idx:
+            new.extend(dense[i] + h * np.arange(-(CLUSTER // 2), CLUSTER // 2 + 1))
+    new = np.asarray(new, float)
+    new = new[(new > 0.0) & (new < 1.0)]
+    if new.size and fracs.size:
+        new = new[np.min(np.abs(new[:, None] - fracs[None, :]), axis=1) > 1e-9]
+    return new, worst
+
+
+def _margins(X, cones):
+    """The clearance margins (M, K) of the sampled states ``X`` (``core.cone_penalty.sampled_margins``
+    without gradients)."""
+    Ms, half = cones
+    g, _ = sampled_margins(X, np.zeros((X.shape[0], 7, 0)), Ms, half)
+    return g.reshape(X.shape[0], -1)
+
+
+SLSQP_ITERATIONS = 40    # a round's SLSQP iterations (feasible iterates are kept between rounds)
+
+
+_COMPILED = []
+
+
+def _compile_kernels():
+    """Compile (or load from numba's cache) the kernels this module runs, once per process, on
+    a one-switch problem: in a fresh install the compilation takes seconds, longer than the
+    optimisation's budget."""
+    if _COMPILED:
+        return
+    J = np.ones(3)
+    y0 = np.zeros(14)
+    y0[0] = 1.0
+    X, dX, *_ = sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3),
+                                 np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0))
+    sampled_margins(X, dX, np.eye(4)[None, :, :], np.array([0.1]))
+    _COMPILED.append(True)
+
+
+def switch_time_cones_applies(problem) -> bool:
+    """Per-axis bound with keep-out cones or a pointing target: what this module adds to
+    ``switch_time_opt`` (full attitude, no cones)."""
+    return math.isinf(problem.torque_norm) and (bool(problem.cones) or problem.qf is None)
+
+
+def bang_bang_cone_answer(problem, col, time_budget=1.0, tols=None):
+    """A verified bang-bang answer from a collocation answer ``col`` of a per-axis problem with
+    keep-out cones or a pointing target, or ``None`` when it does not apply, nothing is
+    verified, or it is slower than ``col`` beyond ``col.tf_tol``.
+
+    The switch times of collocation's sequence (with pulse pairs on its interior axes, rounds
+    of ``switch_time_opt.PULSE_ROUNDS``, the fastest kept) are optimised with the cones imposed
+    (``optimise_switch_times_cones``). Verified like the other switch-time answers (boundary
+    errors at the end of the DOP853 arcs, an RK4 replay of the switch times, the rate limit),
+    and the cone clearance certified at every instant on that replay (``cone_clearance`` ≥
+    ``CLEARANCE_TOL``). ``method="switch-time"``; ``exact`` is False; ``costate0`` is
+    collocation's estimate and the dense costates are NaN (the cone constraints' multipliers
+    make the KKT costates jump, so they are not reported)."""
+    from .switch_time_opt import answer_from_collocation
+    _compile_kernels()      # (a fresh install compiles them once: not on this step's budget)
+    t0 = time.perf_counter()
+    if (not col.success or not switch_time_cones_applies(problem) or col.switch_times is None or col.t is None
+            or len(col.t) < 2):
+        return None
+    return answer_from_collocation(problem, col, AttitudeBVP(problem.replace(cones=())), optimise_switch_times_cones,
+                                   time_budget, tols, SLSQP_ITERATIONS, t0)[0]
+
+
+__all__ = ["optimise_switch_times_cones", "bang_bang_cone_answer", "switch_time_cones_applies"]

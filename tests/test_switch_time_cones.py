@@ -1,0 +1,171 @@
+"""Bang-bang switch-time answers with keep-out cones and pointing targets (solvers.switch_time_cones).
+
+Where no exact extremal refines collocation's answer to a cone problem (a path riding a cone,
+or a singular arc), ``auto`` returns a bang-bang slew whose switch times alone reach the target
+and keep out of the cones. Two problems of the pointing-cones family (seed 100, problems 8 and
+32 of ``slew generate``), which ``auto`` used to answer by collocation: on 8 the path rides
+a cone; on 32 the cones are inactive (margin 0.012 rad) and the torque has a singular arc.
+"""
+import math
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from solvers.attitude_bvp import AttitudeBVP
+from solvers.clearance import CLEARANCE_TOL, certified_min_margin, cone_margins
+from solvers.core.cone_penalty import cone_matrix, sampled_margins
+from solvers.core.switch_sequence import sequence_end, sequence_samples
+from solvers.switch_time_cones import (bang_bang_cone_answer, optimise_switch_times_cones,
+                                       switch_time_cones_applies)
+from solvers.switch_time_opt import _start_state
+from solvers.verify import replay_path
+
+RIDES = {"inertia": [0.9432739022692707, 0.5015686265260632, 0.6618501277060911], "torque_max": [1.0, 1.0, 1.0],
+         "torque_norm": "inf", "q0": [0.5317006783231605, -0.31953034837435934, -0.7215184024279621,
+                                      0.3075807862924033],
+         "omega0": [0.0, 0.0, 0.0], "qf": None, "sensor_axis": [1.0, 0.0, 0.0],
+         "sensor_target": [0.4558060085459401, -0.520373328887964, -0.7221166672743936], "omegaf": [0.0, 0.0, 0.0],
+         "cones": [{"axis": [0.6389794886332707, 0.6903479206268031, -0.3393006949480259],
+                    "half_angle": 0.18173039312123912},
+                   {"axis": [0.6771971581838238, -0.17875317468534946, 0.7137585806753304],
+                    "half_angle": 0.5066511428701879},
+                   {"axis": [0.5480170824701568, 0.7686456512491107, -0.3299411161657911],
+                    "half_angle": 0.31162697171513376}], "rate_max": None}
+SINGULAR = {"inertia": [0.8441719625666518, 0.8154377940907007, 0.8858524888023773], "torque_max": [1.0, 1.0, 1.0],
+            "torque_norm": "inf", "q0": [0.5331781451160826, 0.1363297020367295, 0.25162099949558975,
+                                         -0.7961294810054396],
+            "omega0": [0.0, 0.0, 0.0], "qf": None, "sensor_axis": [1.0, 0.0, 0.0],
+            "sensor_target": [-0.07799151522603592, 0.7907212275081175, 0.6071879971811063],
+            "omegaf": [0.0, 0.0, 0.0],
+            "cones": [{"axis": [-0.9825954083861643, -0.11593106961492601, 0.14514217345887503],
+                       "half_angle": 0.21608732582461398},
+                      {"axis": [0.40149303669982167, -0.8114042117400778, -0.4247664613078801],
+                       "half_angle": 0.47228694302164576},
+                      {"axis": [-0.9587015557197751, 0.06613757657430237, 0.27661733139006567],
+                       "half_angle": 0.24897478808034293}], "rate_max": None}
+
+
+def _sequence(prob):
+    """A bang-bang sequence with switches on every axis and its augmented start state."""
+    bvp = AttitudeBVP(prob.replace(cones=()))
+    bvp.set_mode("bang")
+    axes = np.array([0, 1, 2, 0, 1, 2, 0], dtype=np.int64)
+    times = np.array([0.3, 0.5, 0.7, 1.1, 1.3, 1.6, 1.9])
+    signs0 = np.array([1.0, -1.0, 1.0])
+    args = (bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen)
+    return bvp, _start_state(bvp), times, axes, signs0, 2.4, args
+
+
+def test_sampled_states_agree_with_the_end_pass_and_finite_differences():
+    bvp, y0, times, axes, signs0, T, args = _sequence(SlewProblem.from_dict(RIDES))
+    fr = np.linspace(0.0, 1.0, 23)[1:-1]
+    X, dX, yT, dx, nfev, ok = sequence_samples(y0, times, axes, T, signs0, fr, *args)
+    y2, dx2, _, _, ok2 = sequence_end(y0, times, axes, T, signs0, *args, True)
+    assert ok and ok2
+    assert np.abs(yT - y2).max() < 1e-12
+    assert np.abs(dx - dx2).max() < 1e-10
+    v = np.concatenate([times, [T]])
+    h = 1e-6
+    for c in (0, 3, 6, 7):
+        vp, vm = v.copy(), v.copy()
+        vp[c] += h
+        vm[c] -= h
+        fd = (sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args)[0]
+              - sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args)[0]) / (2 * h)
+        assert np.abs(fd - dX[:, :, c]).max() < 1e-7, c
+        assert np.abs(dX[:, :, c]).max() > 1e-2, c      # the column is not trivially zero
+
+
+def test_sampled_margins_agree_with_the_clearance_module_and_finite_differences():
+    prob = SlewProblem.from_dict(RIDES)
+    bvp, y0, times, axes, signs0, T, args = _sequence(prob)
+    fr = np.linspace(0.0, 1.0, 41)[1:-1]
+    X, dX, *_ = sequence_samples(y0, times, axes, T, signs0, fr, *args)
+    Ms = np.array([cone_matrix(c.axis, prob.sensor_axis) for c in prob.cones])
+    half = np.array([c.half_angle for c in prob.cones])
+    g, Jg = sampled_margins(X, dX, Ms, half)
+    assert np.abs(g.reshape(len(fr), -1) - cone_margins(prob, X[:, 0:4])).max() < 1e-10
+    v = np.concatenate([times, [T]])
+    h = 1e-6
+    for c in (1, 7):
+        vp, vm = v.copy(), v.copy()
+        vp[c] += h
+        vm[c] -= h
+        gp = sampled_margins(sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args)[0], dX, Ms, half)[0]
+        gm = sampled_margins(sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args)[0], dX, Ms, half)[0]
+        assert np.abs((gp - gm) / (2 * h) - Jg[:, c]).max() < 1e-6
+
+
+def _replay_checks(prob, sol):
+    """Fly the answer's switch times alone (RK4, 20,000 steps): pointing error (rad), end rate,
+    certified clearance (rad)."""
+    t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, sol.switch_times, sol.u_first, sol.tf,
+                       20000)
+    bvp = AttitudeBVP(prob.replace(cones=()))
+    cert = certified_min_margin(prob, t, x[:, 0:4], x[:, 4:7])[1]
+    return bvp.pointing_error(x[-1, 0:4]), float(np.linalg.norm(x[-1, 4:7])), cert
+
+
+@pytest.mark.parametrize("case", [RIDES, SINGULAR], ids=["rides-a-cone", "singular-arc"])
+def test_auto_answers_by_switch_times_that_replay_to_the_target_outside_the_cones(case):
+    prob = SlewProblem.from_dict(case)
+    col = solvers.solve(prob, method="collocation")
+    # (a generous budget: in a fresh install the first solve compiles kernels for seconds)
+    sol = solvers.solve(prob, time_budget=120.0)
+    assert sol.success and sol.method == "switch-time" and not sol.exact, sol.route
+    assert sol.verification["cone_clearance"]["passed"]
+    assert "roll_transversality" not in sol.verification     # a costate condition: not an extremal
+    point, rate, cert = _replay_checks(prob, sol)
+    assert point < 1e-9 and rate < 1e-9
+    assert cert >= CLEARANCE_TOL
+    # collocation's own switch times, flown as a bang-bang control, miss the target: the reason
+    # this answer exists
+    assert _replay_checks(prob, col)[0] > 1e-3
+    # not slower than collocation beyond its accuracy (measured: 3.5e-5 and 4.7e-5 faster)
+    assert sol.tf <= col.tf + col.tf_tol
+    assert sol.tf <= col.tf * (1 + 1e-4)
+
+
+def test_the_optimiser_keeps_out_of_the_cones_it_is_given():
+    prob = SlewProblem.from_dict(RIDES)
+    col = solvers.solve(prob, method="collocation")
+    sol = bang_bang_cone_answer(prob, col, time_budget=3.0)
+    assert sol is not None and sol.success
+    # the same sequence without the cones flies through one: the constraint is what keeps it out
+    free = prob.replace(cones=())
+    bvp = AttitudeBVP(free)
+    from solvers.switch_time_opt import sequence_from_samples
+    sw = [np.asarray(x, float) / bvp.tau for x in col.switch_times]
+    s0, ax, tm = sequence_from_samples(np.asarray(col.t) / bvp.tau, col.u, prob.torque_max, sw, col.u_first)
+    r = optimise_switch_times_cones(free, s0, ax, tm, col.tf / bvp.tau, time_budget=3.0)
+    assert r.success
+    t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0,
+                       [s * bvp.tau for s in r.switch_times()], r.signs0, r.T * bvp.tau, 8000)
+    assert cone_margins(prob, x[:, 0:4]).min() < -1e-3
+    assert r.T * bvp.tau < sol.tf
+
+
+def test_applies_to_per_axis_problems_with_cones_or_a_pointing_target():
+    prob = SlewProblem.from_dict(RIDES)
+    assert switch_time_cones_applies(prob)
+    assert switch_time_cones_applies(prob.replace(cones=()))          # pointing, no cones
+    full = prob.replace(cones=(), sensor_target=None, qf=[1.0, 0.0, 0.0, 0.0])
+    assert not switch_time_cones_applies(full)                          # switch_time_opt's case
+    assert not switch_time_cones_applies(prob.replace(torque_norm=2.0))
+
+
+def test_bad_input_names_the_field():
+    prob = SlewProblem.from_dict(RIDES)
+    times, axes = np.array([0.5, 1.0]), np.array([0, 1])
+    with pytest.raises(ValueError, match="torque_norm"):
+        optimise_switch_times_cones(prob.replace(torque_norm=2.0), [1, 1, 1], axes, times, 2.0)
+    with pytest.raises(ValueError, match="signs0"):
+        optimise_switch_times_cones(prob, [1, 0, 1], axes, times, 2.0)
+    with pytest.raises(ValueError, match="axes, times"):
+        optimise_switch_times_cones(prob, [1, 1, 1], axes, np.array([0.5]), 2.0)
+    with pytest.raises(ValueError, match="T, times"):
+        optimise_switch_times_cones(prob, [1, 1, 1], axes, times, math.nan)
+    with pytest.raises(ValueError, match="axes"):
+        optimise_switch_times_cones(prob, [1, 1, 1], np.array([0, 3]), times, 2.0)
