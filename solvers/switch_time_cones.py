@@ -10,7 +10,8 @@ bang-bang answer that reaches the target exactly and keeps out of the cones at e
     subject to     the boundary conditions (6 for a full attitude; 5 for a pointing target:
                    the sensor on the target (2) and the rates (3), the roll left free),
                    each cone's clearance margin ≥ δ at the sample instants s_m · tf
-                   (δ = ``SAMPLE_MARGIN``, 5e-7 rad, or half the smaller end margin),
+                   (δ = ``SAMPLE_MARGIN``, 5e-7 rad, ramped down near an end that sits
+                   closer to a cone: ``keep_off``),
                    each axis's switches in order, 0 ≤ t_k ≤ tf,
 
 for a fixed switching sequence (``switch_time_opt.sequence_from_samples``: collocation's sign
@@ -48,6 +49,7 @@ BASE_SAMPLES = 64       # evenly spaced sample instants (fractions of tf) in the
 DENSE_SAMPLES = 4000    # the dense pass that finds the margin's minima between samples
 NEAR = 2e-3             # rad: a local minimum of the margin below this becomes a sample
 SAMPLE_MARGIN = 5e-7    # rad: the margin the samples keep from the cones
+END_RAMP = 0.02         # share of tf over which the samples' margin ramps up from an end on a cone's edge
 DENSE_TOL = 1e-9        # rad: the dense pass's deepest point inside a cone that ends the exchange
 CLUSTER = 5             # samples around each near minimum of the margin
 POLISH_MARGIN = 1e-9    # rad: the margin the polish gives a violated sample
@@ -81,13 +83,14 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
     Ms = np.array([cone_matrix(c.axis, s_b) for c in cones]).reshape(len(cones), 4, 4)
     half = np.array([c.half_angle for c in cones], dtype=float)
     y0 = _start_state(bvp)
-    # the samples keep SAMPLE_MARGIN off the cones (so that the margin between them stays
-    # positive), or half the smaller end margin where a start or target sits closer
     ends = np.array([np.concatenate([bvp.q0, np.zeros(3)]), np.concatenate([bvp.qf, np.zeros(3)])])
-    end_margin = float(_margins(ends, (Ms, half)).min()) if cones else math.inf
-    keep_off = max(0.0, min(SAMPLE_MARGIN, 0.5 * end_margin))
+    end_margins = _margins(ends, (Ms, half)) if cones else np.zeros((2, 0))
+    # the dense pass's acceptance: a start or target may sit on a cone's edge (within the
+    # problem's own tolerance), and that instant is then no worse than it
+    accept = min(-DENSE_TOL, float(end_margins.min(initial=0.0)) - DENSE_TOL)
     args = (bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen)
     t_start = time.perf_counter()
+    deadline = t_start + time_budget
     stats = {"nfev": 0, "nit": 0}
     fracs = (np.arange(BASE_SAMPLES) + 0.5) / BASE_SAMPLES
     cache = {}
@@ -98,7 +101,7 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             if time.perf_counter() - t_start > time_budget:
                 raise TimeoutError
             X, dX, yT, dx, nfev, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0,
-                                                       fracs, *args)
+                                                       fracs, *args, True)
             stats["nfev"] += nfev
             if not ok:
                 raise FloatingPointError("propagation failed")
@@ -106,7 +109,7 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             D7 = D[rows, :7]
             g, Jg = sampled_margins(X, dX, Ms, half)
             cache.clear()
-            cache[key] = (r[rows], D7 @ dx, g - keep_off, Jg, yT)
+            cache[key] = (r[rows], D7 @ dx, g - keep_off(fracs, end_margins).ravel(), Jg, yT)
         return cache[key]
 
     A = order_constraints(axes)
@@ -123,7 +126,7 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
     try:
         if cones:
             # the start's own near contacts are sampled from the first round on
-            add, _ = _new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs)
+            add, _ = _new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs, deadline)
             fracs = np.unique(np.concatenate([fracs, add]))
         # rounds: SLSQP, the feasibility polish, the dense pass; a feasible iterate is kept,
         # and the next round starts from it (more samples where it entered a cone, or more
@@ -136,10 +139,10 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             stats["nit"] += int(res.nit)
             v = _polish(evaluate, v)
             resid = float(np.linalg.norm(evaluate(v)[0]))
-            add, worst = (_new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs) if cones
+            add, worst = (_new_samples(y0, v, n, axes, signs0, args, (Ms, half), fracs, deadline) if cones
                           else (np.zeros(0), math.inf))
             stats["nfev"] += DENSE_SAMPLES if cones else 0
-            feasible = resid < 1e-10 and worst >= -DENSE_TOL
+            feasible = resid < 1e-10 and worst >= accept
             if not resid < 1e-10:
                 why = f"boundary residual {resid:.2e} after the polish"
             elif not feasible:
@@ -173,6 +176,17 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
     return SwitchTimeOptResult(True, note, float(v[n]), v[:n][keep].copy(),
                                axes[keep].copy(), signs0, resid, stats["nit"], stats["nfev"], np.full(6, np.nan),
                                math.nan, converged)
+
+
+def keep_off(fracs, end_margins):
+    """``(M, K)``: the margin each sample keeps from each cone: ``SAMPLE_MARGIN`` (so that the
+    margin between samples stays positive), ramped down near a start or target that sits closer
+    to the cone than that, to half its own margin there (never below 0), over ``END_RAMP`` of tf."""
+    s = np.asarray(fracs, float)[:, None]
+    e0 = np.maximum(0.0, 0.5 * end_margins[0])[None, :]
+    e1 = np.maximum(0.0, 0.5 * end_margins[1])[None, :]
+    ramp = SAMPLE_MARGIN / END_RAMP
+    return np.minimum(SAMPLE_MARGIN, np.minimum(e0 + ramp * s, e1 + ramp * (1.0 - s)))
 
 
 def _polish(evaluate, v):
@@ -209,14 +223,16 @@ def _polish(evaluate, v):
     return v
 
 
-def _new_samples(y0, v, n, axes, signs0, args, cones, fracs):
+def _new_samples(y0, v, n, axes, signs0, args, cones, fracs, deadline):
     """``(new fractions, deepest margin)``: around each local minimum of a cone's margin below
     ``NEAR`` on the dense pass, a cluster of ``CLUSTER`` samples one dense step apart (the
     minimum moves as the iterate does: the cluster keeps it between samples, where the margin
     can dip below the samples' by at most ~|θ̈| h² / 8), not already sampled; and the smallest
     margin seen."""
+    if time.perf_counter() > deadline:
+        raise TimeoutError
     dense = np.linspace(0.0, 1.0, DENSE_SAMPLES)
-    X, *_, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0, dense, *args)
+    X, *_, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0, dense, *args, False)
     if not ok:
         raise FloatingPointError("propagation failed on the dense pass")
     g = _margins(X, cones)
@@ -259,9 +275,20 @@ def _compile_kernels():
     y0 = np.zeros(14)
     y0[0] = 1.0
     X, dX, *_ = sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3),
-                                 np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0))
+                                 np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), True)
     sampled_margins(X, dX, np.eye(4)[None, :, :], np.array([0.1]))
+    sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3), np.array([0.5]), J, J,
+                     MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), False)
     _COMPILED.append(True)
+
+
+def rate_limit_active(problem, col) -> bool:
+    """Whether collocation's answer runs at the rate limit (some ``|ω_i|`` at 98 % of
+    ``rate_max_i`` or more): holding a rate limit needs an interior torque, which no bang-bang
+    sequence gives, so the optimisation is not tried (its answer would fail the rate check)."""
+    if problem.rate_max is None or col.omega is None or len(col.omega) == 0:
+        return False
+    return bool(np.max(np.abs(np.asarray(col.omega, float)) / problem.rate_max[None, :]) >= 0.98)
 
 
 def switch_time_cones_applies(problem) -> bool:
@@ -284,11 +311,11 @@ def bang_bang_cone_answer(problem, col, time_budget=1.0, tols=None):
     collocation's estimate and the dense costates are NaN (the cone constraints' multipliers
     make the KKT costates jump, so they are not reported)."""
     from .switch_time_opt import answer_from_collocation
+    if (not col.success or not switch_time_cones_applies(problem) or col.switch_times is None or col.t is None
+            or len(col.t) < 2 or rate_limit_active(problem, col)):
+        return None
     _compile_kernels()      # (a fresh install compiles them once: not on this step's budget)
     t0 = time.perf_counter()
-    if (not col.success or not switch_time_cones_applies(problem) or col.switch_times is None or col.t is None
-            or len(col.t) < 2):
-        return None
     return answer_from_collocation(problem, col, AttitudeBVP(problem.replace(cones=())), optimise_switch_times_cones,
                                    time_budget, tols, SLSQP_ITERATIONS, t0)[0]
 

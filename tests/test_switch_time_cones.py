@@ -61,7 +61,7 @@ def _sequence(prob):
 def test_sampled_states_agree_with_the_end_pass_and_finite_differences():
     bvp, y0, times, axes, signs0, T, args = _sequence(SlewProblem.from_dict(RIDES))
     fr = np.linspace(0.0, 1.0, 23)[1:-1]
-    X, dX, yT, dx, nfev, ok = sequence_samples(y0, times, axes, T, signs0, fr, *args)
+    X, dX, yT, dx, nfev, ok = sequence_samples(y0, times, axes, T, signs0, fr, *args, True)
     y2, dx2, _, _, ok2 = sequence_end(y0, times, axes, T, signs0, *args, True)
     assert ok and ok2
     assert np.abs(yT - y2).max() < 1e-12
@@ -72,8 +72,8 @@ def test_sampled_states_agree_with_the_end_pass_and_finite_differences():
         vp, vm = v.copy(), v.copy()
         vp[c] += h
         vm[c] -= h
-        fd = (sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args)[0]
-              - sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args)[0]) / (2 * h)
+        fd = (sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args, True)[0]
+              - sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args, True)[0]) / (2 * h)
         assert np.abs(fd - dX[:, :, c]).max() < 1e-7, c
         assert np.abs(dX[:, :, c]).max() > 1e-2, c      # the column is not trivially zero
 
@@ -82,7 +82,7 @@ def test_sampled_margins_agree_with_the_clearance_module_and_finite_differences(
     prob = SlewProblem.from_dict(RIDES)
     bvp, y0, times, axes, signs0, T, args = _sequence(prob)
     fr = np.linspace(0.0, 1.0, 41)[1:-1]
-    X, dX, *_ = sequence_samples(y0, times, axes, T, signs0, fr, *args)
+    X, dX, *_ = sequence_samples(y0, times, axes, T, signs0, fr, *args, True)
     Ms = np.array([cone_matrix(c.axis, prob.sensor_axis) for c in prob.cones])
     half = np.array([c.half_angle for c in prob.cones])
     g, Jg = sampled_margins(X, dX, Ms, half)
@@ -93,8 +93,8 @@ def test_sampled_margins_agree_with_the_clearance_module_and_finite_differences(
         vp, vm = v.copy(), v.copy()
         vp[c] += h
         vm[c] -= h
-        gp = sampled_margins(sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args)[0], dX, Ms, half)[0]
-        gm = sampled_margins(sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args)[0], dX, Ms, half)[0]
+        gp = sampled_margins(sequence_samples(y0, vp[:-1], axes, vp[-1], signs0, fr, *args, True)[0], dX, Ms, half)[0]
+        gm = sampled_margins(sequence_samples(y0, vm[:-1], axes, vm[-1], signs0, fr, *args, True)[0], dX, Ms, half)[0]
         assert np.abs((gp - gm) / (2 * h) - Jg[:, c]).max() < 1e-6
 
 
@@ -167,5 +167,60 @@ def test_bad_input_names_the_field():
         optimise_switch_times_cones(prob, [1, 1, 1], axes, np.array([0.5]), 2.0)
     with pytest.raises(ValueError, match="T, times"):
         optimise_switch_times_cones(prob, [1, 1, 1], axes, times, math.nan)
-    with pytest.raises(ValueError, match="axes"):
+    with pytest.raises(ValueError, match="axes: switch axes"):
         optimise_switch_times_cones(prob, [1, 1, 1], np.array([0, 3]), times, 2.0)
+
+
+def test_a_pointing_target_without_cones_gets_a_switch_time_answer_too():
+    """The singular problem without its (inactive) cones: the pointing route's collocation answer
+    has a singular arc, and the switch-time answer (roll free) replaces it."""
+    prob = SlewProblem.from_dict(SINGULAR).replace(cones=())
+    col = solvers.solve(prob, method="collocation")
+    sol = solvers.solve(prob, time_budget=120.0)
+    assert sol.success and sol.method == "switch-time", sol.route
+    point, rate, _ = _replay_checks(prob, sol)
+    assert point < 1e-9 and rate < 1e-9
+    assert sol.tf < col.tf                           # measured 2.5317333 against 2.5319566
+
+
+def test_samples_keep_their_margin_except_near_an_end_on_a_cone_edge():
+    from solvers.switch_time_cones import END_RAMP, SAMPLE_MARGIN, keep_off
+    fr = np.array([0.0, 0.5 * END_RAMP, END_RAMP, 0.5, 1.0 - END_RAMP, 1.0])
+    far = keep_off(fr, np.array([[0.3, 0.2], [0.1, 0.4]]))
+    assert np.all(far == SAMPLE_MARGIN)
+    # start on the first cone's edge (margin 0), target 2e-7 from the second's
+    k = keep_off(fr, np.array([[0.0, 0.3], [0.1, 2e-7]]))
+    assert k[0, 0] == 0.0 and k[1, 0] == pytest.approx(0.5 * SAMPLE_MARGIN) and k[2, 0] == SAMPLE_MARGIN
+    assert k[-1, 1] == pytest.approx(1e-7) and k[3, 1] == SAMPLE_MARGIN
+    # an end slightly inside (within the problem's tolerance) keeps nothing there, never less
+    assert keep_off(fr, np.array([[-1e-9], [0.1]]))[0, 0] == 0.0
+
+
+def test_the_optimiser_keeps_its_budget():
+    import time
+    prob = SlewProblem.from_dict(RIDES)
+    col = solvers.solve(prob, method="collocation")
+    bvp = AttitudeBVP(prob.replace(cones=()))
+    from solvers.switch_time_opt import sequence_from_samples
+    sw = [np.asarray(x, float) / bvp.tau for x in col.switch_times]
+    s0, ax, tm = sequence_from_samples(np.asarray(col.t) / bvp.tau, col.u, prob.torque_max, sw, col.u_first,
+                                       extra_pairs=8)
+    optimise_switch_times_cones(prob, s0, ax, tm, col.tf / bvp.tau, time_budget=0.01)    # (compiled)
+    t0 = time.perf_counter()
+    r = optimise_switch_times_cones(prob, s0, ax, tm, col.tf / bvp.tau, time_budget=0.1)
+    assert time.perf_counter() - t0 < 0.1 + 0.4       # the check comes between evaluations
+    assert r.success or "time budget" in r.message
+
+
+def test_an_active_rate_limit_is_left_to_collocation():
+    """Holding a rate limit needs an interior torque: no bang-bang sequence gives it, so the
+    optimisation is not tried when collocation's answer runs at the limit."""
+    from solvers.switch_time_cones import rate_limit_active
+    prob = SlewProblem.from_dict(RIDES)
+    col = solvers.solve(prob, method="collocation")
+    peak = np.max(np.abs(col.omega), axis=0)
+    limited = prob.replace(rate_max=float(peak.max()) * 1.01)
+    assert rate_limit_active(limited, col)
+    assert bang_bang_cone_answer(limited, col, time_budget=5.0) is None
+    assert not rate_limit_active(prob.replace(rate_max=float(peak.max()) * 1.5), col)
+    assert not rate_limit_active(prob, col)

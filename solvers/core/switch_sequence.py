@@ -185,7 +185,7 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
 
 
 @njit(cache=True)
-def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, rtol, atol, pen):
+def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
     """The states of a bang-bang control with switches at fixed instants at the sample instants
     ``fracs · T`` (``fracs`` sorted, in [0, 1]), and their derivatives in ``[times, T]``, for
     path constraints (keep-out cones) in switch-time optimisation.
@@ -193,7 +193,8 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
     Forward sensitivities: ``G = ∂x/∂[times, T]`` (7, n + 1) rides along the arcs
     (``G ← Φ G``); a switch ``k`` adds its jump ``f⁻ - f⁺`` to column ``k``; at a sample
     ``x(s T)`` the ``T`` column is ``s f(x)`` (the instant moves with ``T``; the switches do
-    not). Switch instants are clipped to ``[0, T]`` as in ``sequence_end``.
+    not). Switch instants are clipped to ``[0, T]`` as in ``sequence_end``. Without
+    ``want_jac`` the states alone (``dX`` and ``dx`` zeros): the arcs carry no transition matrix.
 
     Returns ``(X (M, 7), dX (M, 7, n + 1), y(T), dx (7, n + 1), nfev, ok)``.
     """
@@ -218,6 +219,7 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
         ev_i[n + m] = m
     order = np.argsort(ev_t, kind="mergesort")
     G = np.zeros((7, n + 1))
+    m = 7 if want_jac else 0
     signs = signs0.copy()
     y = y0.copy()
     t = 0.0
@@ -226,22 +228,25 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
         e = order[kk] if kk < n + M else -1
         tk = T if e < 0 else ev_t[e]
         if tk > t:
-            y, Phi, ok = _arc_transition(y, tk - t, 7, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
             nfev += 1
             if not ok:
                 return X, dX, y, dx, nfev, False
-            G = Phi @ G
+            if want_jac:
+                G = Phi @ G
             t = tk
         if e < 0:
             break
         if ev_k[e] == 1:
-            m = ev_i[e]
-            f = ext_rhs(y, umax * signs, J)
+            k = ev_i[e]
             for i in range(7):
-                X[m, i] = y[i]
-                for c in range(n):
-                    dX[m, i, c] = G[i, c]
-                dX[m, i, n] = fracs[m] * f[i]
+                X[k, i] = y[i]
+            if want_jac:
+                f = ext_rhs(y, umax * signs, J)
+                for i in range(7):
+                    for c in range(n):
+                        dX[k, i, c] = G[i, c]
+                    dX[k, i, n] = fracs[k] * f[i]
             continue
         j = ev_i[e]
         raw = times[j]
@@ -251,9 +256,10 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
         if raw > 0.0:
             G[4 + a, j] += 2.0 * signs[a] * umax[a] / J[a]
         signs[a] = -signs[a]
-    f = ext_rhs(y, umax * signs, J)
-    for i in range(7):
-        for c in range(n):
-            dx[i, c] = G[i, c]
-        dx[i, n] = f[i]
+    if want_jac:
+        f = ext_rhs(y, umax * signs, J)
+        for i in range(7):
+            for c in range(n):
+                dx[i, c] = G[i, c]
+            dx[i, n] = f[i]
     return X, dX, y, dx, nfev, True
