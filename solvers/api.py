@@ -75,9 +75,10 @@ REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation whe
 # s: auto's bang-bang switch-time optimisation when no exact extremal refines a collocation
 # answer (three rounds of 15-250 ms each on held-out singular problems)
 BANG_BANG_BUDGET = 1.0
-# s: the same with keep-out cones or a pointing target: on 90 seed-100 cone problems 1 s left 11 answers to
-# collocation that 4 s verified (their exchange rounds take 0.3-0.8 s each)
-CONE_BANG_BANG_BUDGET = 2.0
+# s: the same with keep-out cones or a pointing target, shared by its 3 pulse rounds: on 90 seed-100
+# cone problems 1 s left 11 answers to collocation that 4 s verified; Melton's BP2 needs ~1 s for
+# its round with 4 pulse pairs
+CONE_BANG_BANG_BUDGET = 3.0
 # auto: a warm-start extremal this much slower than the model's predicted final time is
 # challenged by the collocation route (``_challenge_learned_answer``), and so is one near a half turn
 LOCAL_OPTIMUM_MARGIN = 0.015

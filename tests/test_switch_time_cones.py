@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import solvers
+from reference_cases import melton
 from slew_env import SlewProblem
 from solvers.attitude_bvp import AttitudeBVP
 from solvers.clearance import CLEARANCE_TOL, certified_min_margin, cone_margins
@@ -224,3 +225,23 @@ def test_an_active_rate_limit_is_left_to_collocation():
     assert bang_bang_cone_answer(limited, col, time_budget=5.0) is None
     assert not rate_limit_active(prob.replace(rate_max=float(peak.max()) * 1.5), col)
     assert not rate_limit_active(prob, col)
+
+
+@pytest.mark.parametrize("alpha, theta, published", [(45.0, -90.0, 1.9258), (23.0, -70.0, 1.2967)],
+                         ids=["BP1", "BP2"])
+def test_melton_r4_by_switch_times_from_a_start_on_the_cone_edge(alpha, theta, published):
+    """R4: the sensor starts on the cone's edge and the optimal path rides the cone. The
+    switch-time answer (the samples' margin ramps down to the start's 0) is within 0.3 % of the
+    published time, not slower than collocation beyond its tf_tol, and its switch times alone
+    fly the sensor to the target outside the cone."""
+    prob = melton(alpha, theta)
+    col = solvers.solve(prob, method="collocation")
+    sol = bang_bang_cone_answer(prob, col, time_budget=10.0)
+    assert sol is not None and sol.success and sol.method == "switch-time"
+    assert sol.tf == pytest.approx(published, rel=3e-3)
+    assert sol.tf <= col.tf + col.tf_tol
+    point, rate, cert = _replay_checks(prob, sol)
+    assert point < 1e-9 and rate < 1e-9
+    assert cert >= CLEARANCE_TOL
+    # the start sits on the edge (margin 0 to rounding)
+    assert abs(cone_margins(prob, prob.q0[None, :])[0, 0]) < 1e-12
