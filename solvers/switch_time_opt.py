@@ -84,24 +84,29 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     stats = {"nfev": 0, "nit": 0}
     cache = {}
 
-    def evaluate(v):
+    def evaluate(v, jac=False):
+        """``(y(T), r, J_r, D7, M, nfev)`` at ``v`` (``propagate_sequence``); without ``jac``
+        the last four but ``nfev`` are ``None``: SLSQP's line search needs the residual alone,
+        and the arcs without transition matrices take the same steps at a fraction of the cost."""
         key = v.tobytes()
-        if key not in cache:
+        hit = cache.get(key)
+        if hit is None or (jac and hit[2] is None):
             if time.perf_counter() - t_start > time_budget:
                 raise TimeoutError
-            out = propagate_sequence(bvp, v[:n], axes, signs0, float(v[n]), y0, True)
+            out = propagate_sequence(bvp, v[:n], axes, signs0, float(v[n]), y0, jac)
             if out is None:
                 raise FloatingPointError("propagation failed")
             stats["nfev"] += out[-1]
+            hit = out if jac else (out[0], out[1], None, None, None, out[2])
             cache.clear()
-            cache[key] = out
-        return cache[key]
+            cache[key] = hit
+        return hit
 
     A = order_constraints(axes)
     e_T = np.zeros(n + 1)
     e_T[n] = 1.0
     v0 = np.concatenate([np.clip(np.asarray(times, float), 0.0, T), [T]])
-    cons = [{"type": "eq", "fun": lambda v: evaluate(v)[1], "jac": lambda v: evaluate(v)[2]}]
+    cons = [{"type": "eq", "fun": lambda v: evaluate(v)[1], "jac": lambda v: evaluate(v, True)[2]}]
     if A.shape[0]:
         cons.append({"type": "ineq", "fun": lambda v: A @ v, "jac": lambda v: A})
     fail = None
@@ -127,7 +132,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     # steps are tiny, the inequalities stay as SLSQP left them)
     try:
         for _ in range(8):
-            _, r, Jr, *_ = evaluate(v)
+            _, r, Jr, *_ = evaluate(v, True)
             rn = float(np.linalg.norm(r))
             if rn < 1e-14:
                 break
@@ -135,7 +140,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
             if not float(np.linalg.norm(evaluate(vt)[1])) < rn:
                 break           # not converging: SLSQP ended far from feasible; fail below
             v = vt
-        y, r, Jr, D7, M, _ = evaluate(v)
+        y, r, Jr, D7, M, _ = evaluate(v, True)
     except (TimeoutError, FloatingPointError) as e:
         return SwitchTimeOptResult(False, f"polish: {type(e).__name__} {e}", float(v[n]), v[:n].copy(), axes, signs0,
                                    math.inf, stats["nit"], stats["nfev"])
