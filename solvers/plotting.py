@@ -116,20 +116,29 @@ def plot_solution(sol, path=None, dpi=120):
             n_sw += 1
     ax_u.set_ylabel("u")
 
+    # an answer without costates (a switch-time answer with cones, or whose SLSQP iterate was not
+    # a KKT point: its costates are NaN) has no switching functions or Hamiltonian to draw
+    has_costates = bool(np.all(np.isfinite(S))) and bool(np.all(np.isfinite(H)))
     for i in range(3):
         ax_s.plot(t, S[:, i], color=_AXIS_COLORS[i], label=f"S{AXES[i]}")
     ax_s.axhline(0.0, color="k", lw=0.8)
     ax_s.set_ylabel("S = J⁻¹λω")
 
-    ax_h.plot(t, H, color="tab:red", label="H")
+    if has_costates:
+        ax_h.plot(t, H, color="tab:red", label="H")
     ax_h.axhline(-1.0, color="k", ls=":", lw=0.8, label="-1")
-    lo, hi = min(float(np.min(H)), -1.0), max(float(np.max(H)), -1.0)
-    pad = max(0.25, 0.1 * (hi - lo))
-    ax_h.set_ylim(lo - pad, hi + pad)
-    ax_h.ticklabel_format(axis="y", useOffset=False)
-    dev = float(np.max(np.abs(H + 1.0)))
-    ax_h.text(0.01, 0.92, f"max |H + 1| = {dev:.2e}", transform=ax_h.transAxes, va="top", fontsize=9)
     ax_h.set_ylabel("H")
+    if has_costates:
+        lo, hi = min(float(np.min(H)), -1.0), max(float(np.max(H)), -1.0)
+        pad = max(0.25, 0.1 * (hi - lo))
+        ax_h.set_ylim(lo - pad, hi + pad)
+        ax_h.ticklabel_format(axis="y", useOffset=False)
+        dev = float(np.max(np.abs(H + 1.0)))
+        ax_h.text(0.01, 0.92, f"max |H + 1| = {dev:.2e}", transform=ax_h.transAxes, va="top", fontsize=9)
+    else:
+        for ax in (ax_s, ax_h):
+            ax.text(0.5, 0.5, f"no costates: a {sol.method or 'non-extremal'} answer is not an extremal",
+                    transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.3")
     ax_h.set_xlabel("t (problem time units)")
 
     titles = (PANEL_TITLES[0] + " (quaternion, scalar first)", PANEL_TITLES[1],

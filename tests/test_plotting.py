@@ -111,3 +111,18 @@ def test_sensor_path_plot_with_cones_and_its_margins(tmp_path, capsys):
     assert code == 0
     assert (tmp_path / "f-sensor.png").read_bytes()[:4] == b"\x89PNG"
     assert "f-sensor.png" in capsys.readouterr().out
+
+
+def test_plot_of_an_answer_without_costates(r3_solution, tmp_path):
+    """A switch-time answer with cones has NaN costates (not an extremal): the figure is still
+    drawn, with a note instead of switching functions and Hamiltonian (it raised before)."""
+    import copy
+    from solvers.plotting import plot_solution
+    sol = copy.copy(r3_solution)
+    sol.costate = np.full_like(r3_solution.costate, np.nan)
+    sol.method = "switch-time"
+    path = tmp_path / "no-costates.png"
+    fig = plot_solution(sol, path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert any("no costates" in t.get_text() for t in fig.axes[4].texts)
+    assert len(fig.axes[4].get_lines()) == 1           # the -1 reference alone
