@@ -20,9 +20,11 @@ Methods:
 * ``"collocation"`` — direct collocation (Hermite–Simpson, IPOPT; ``solvers.collocation``):
   approximate, with costate estimates; handles keep-out cones and pointing-only targets.
 * ``"auto"`` (default) — a given guess first (warm start); then collocation and the exact
-  indirect refinement from its costates and switching structure; the collocation answer
-  itself when the refinement cannot be certified; the classical indirect multi-start if
-  collocation fails (see ``_solve_auto``). ``route`` records the path taken.
+  indirect refinement from its costates and switching structure; when the refinement cannot
+  be certified (a singular arc, a path riding a cone), a bang-bang slew with optimised switch
+  times (``solvers.switch_time_opt``, ``solvers.switch_time_cones``), else the collocation
+  answer itself; the classical indirect multi-start if collocation fails (see
+  ``_solve_auto``). ``route`` records the path taken.
 
 Defaults of the indirect multi-start: per-axis 16 candidates at most and at least 8 before
 stopping early, p-norm 8 and 3; a 20 s time budget. See ``solve``.
@@ -1025,9 +1027,12 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
        itself, verified by its own checks and labelled as such in ``route`` and ``message``;
     4. if collocation fails, the classical indirect multi-start.
     Keep-out cones go to collocation; its answer is refined exactly when the cones are inactive
-    (the extremal without cones) or touched at isolated instants (touch-point junctions), and
-    is the answer otherwise (a path riding a cone boundary); pointing-only targets
-    without cones are refined like full-attitude ones (with the roll transversality).
+    (the extremal without cones) or touched at isolated instants (touch-point junctions);
+    otherwise (a path riding a cone boundary, or a singular arc) the answer is a bang-bang slew
+    with collocation's sequence and optimised switch times, the cones imposed
+    (``switch_time_cones``), or, where none is verified, the collocation answer itself.
+    Pointing-only targets without cones are refined like full-attitude ones (with the roll
+    transversality), and get the same switch-time answer where no extremal is certified.
     """
     t0 = time.perf_counter()
     spent = lambda: time.perf_counter() - t0  # noqa: E731
