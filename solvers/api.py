@@ -66,7 +66,8 @@ from .verify import DENSE_STEPS, make_check, verify
 
 METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "candidate_cap", "seed", "time_budget", "tols", "n_dense",
-            "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check"}
+            "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check", "fallback"}
+FALLBACKS = (None, "eigenaxis")
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
 # converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
@@ -310,6 +311,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     costates (``_neighbour_sequences_route``: an extremal in tenths of a second without
     collocation; a bang-bang answer that is not one must beat the collocation route's answer,
     which then runs too); False: the collocation route instead.
+    ``fallback`` (default None): ``"eigenaxis"`` returns, where the route ends without a verified
+    answer (the ``time_budget`` ran out, or nothing converged), the eigenaxis slew of a
+    rest-to-rest full-attitude problem without cones (``method="eigenaxis"``, verified by its
+    replay, not time-optimal; planned after the budget, ~10 ms for a per-axis bound): a flyable
+    answer for on-board use under a hard budget. The route's message says why it was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
     predicted time, or a slew within 10° of a half turn; ``_challenge_learned_answer``) and keeps
@@ -340,6 +346,12 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     check_local = options.pop("local_optimum_check", True)
     if not isinstance(check_local, bool):
         raise ValueError(f"local_optimum_check: expected True or False, got {check_local!r}")
+    fallback = options.pop("fallback", None)
+    if not (fallback is None or (isinstance(fallback, str) and fallback in FALLBACKS)):
+        raise ValueError(f"fallback: expected None or 'eigenaxis', got {fallback!r}")
+    if fallback is not None and method in ("collocation", "eigenaxis"):
+        raise ValueError(f"fallback: applies to the 'auto', 'indirect' and 'multiple-shooting' routes, "
+                         f"not method={method!r}")
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
@@ -421,7 +433,39 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
             what = "learned guess's structured candidates" if later is not None else "learned guess"
             sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
+    if fallback == "eigenaxis" and not sol.success:
+        sol = _eigenaxis_fallback(prob, sol, t0)
     return sol
+
+
+def _eigenaxis_fallback(prob, sol, t0) -> SlewSolution:
+    """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
+    ran out, or nothing converged), the eigenaxis slew of a rest-to-rest full-attitude problem
+    without cones (``eigenaxis_answer``: what most spacecraft fly today, verified by its replay;
+    ~10 ms for a per-axis bound, after the budget). ``sol`` unchanged, its message saying why,
+    where the fallback does not apply or fails."""
+    if prob.cones or prob.qf is None or not prob.is_rest_to_rest:
+        why = "keep-out cones" if prob.cones else ("a pointing target" if prob.qf is None else "non-zero rates")
+        sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {why}.)"
+        return sol
+    from .eigenaxis_answer import eigenaxis_answer
+    try:
+        eig = eigenaxis_answer(prob)
+    except ValueError as e:          # a zero slew: nothing to fly
+        sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {e}.)"
+        return sol
+    if not eig.success:
+        sol.message = f"{sol.message} (fallback 'eigenaxis' failed: {eig.message[:200]})"
+        return sol
+    eig.route = (f"{sol.route[:300]} → no verified time-optimal answer (status {sol.status}) → "
+                 f"fallback: the eigenaxis slew")
+    eig.message = (f"{eig.message} Returned as the fallback (fallback='eigenaxis'): the time-optimal route "
+                   f"gave no verified answer ({sol.message[:200]})")
+    eig.nit, eig.nfev = eig.nit + sol.nit, eig.nfev + sol.nfev
+    eig.candidates_tf = list(sol.candidates_tf or [])
+    eig.warm_start = sol.warm_start
+    eig.wall_time = time.perf_counter() - t0
+    return eig
 
 
 def _challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSolution:

@@ -74,6 +74,11 @@ def add_arguments(p):
     p.add_argument("--no-local-optimum-check", dest="local_optimum_check", action="store_false", default=True,
                    help="auto: return the learned guess's extremal at once, without running the collocation route "
                         "where it may be a local optimum (well above the predicted time, or near a half turn)")
+    p.add_argument("--time-budget", type=float, metavar="S",
+                   help="seconds for the whole solve (default: the solver's, 20; collocation 60)")
+    p.add_argument("--fallback", choices=("eigenaxis",), default=None,
+                   help="where no verified time-optimal answer comes within the budget, return the eigenaxis slew "
+                        "(rest-to-rest, full attitude, no cones; verified, not time-optimal)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
                         "(the first call in a process also loads compiled code; default 3, 0 to skip)")
@@ -105,6 +110,16 @@ def _solve_options(args):
         opts["seed"] = args.seed
     if not getattr(args, "local_optimum_check", True):
         opts["local_optimum_check"] = False
+    tb = getattr(args, "time_budget", None)
+    if tb is not None:
+        if not (math.isfinite(tb) and tb > 0):
+            raise ValueError(f"--time-budget: must be a positive number of seconds, got {tb}")
+        opts["time_budget"] = tb
+    if getattr(args, "fallback", None) is not None:
+        if args.method in ("collocation", "eigenaxis"):
+            raise ValueError(f"--fallback: applies to the auto, indirect and multiple-shooting methods, "
+                             f"not --method {args.method}")
+        opts["fallback"] = args.fallback
     ws = getattr(args, "warm_start", "default")
     if ws in (None, "none", "None"):
         opts["warm_start"] = None
