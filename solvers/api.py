@@ -78,9 +78,9 @@ REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation whe
 # s: auto's bang-bang switch-time optimisation when no exact extremal refines a collocation
 # answer (three rounds of 15-250 ms each on held-out singular problems)
 BANG_BANG_BUDGET = 1.0
-# s: the same with keep-out cones or a pointing target, shared by its 3 pulse rounds: on 90 seed-100
-# cone problems 1 s left 11 answers to collocation that 4 s verified; Melton's BP2 needs ~1 s for
-# its round with 4 pulse pairs
+# s: the same with keep-out cones or a pointing target (its pulse rounds in turn, each with what is
+# left): on 90 seed-100 cone problems 1 s left 11 answers to collocation that 4 s verified; on
+# Melton's BP2 the round without pulses takes ~1 s and the one with 4 pairs, the answer, ~1.2 s
 CONE_BANG_BANG_BUDGET = 3.0
 # auto: a warm-start extremal this much slower than the model's predicted final time is
 # challenged by the collocation route (``_challenge_learned_answer``), and so is one near a half turn
@@ -457,12 +457,11 @@ def _eigenaxis_fallback(prob, sol, t0) -> SlewSolution:
     if not eig.success:
         sol.message = f"{sol.message} (fallback 'eigenaxis' failed: {eig.message[:200]})"
         return sol
-    eig.route = (f"{sol.route[:300]} → no verified time-optimal answer (status {sol.status}) → "
-                 f"fallback: the eigenaxis slew")
-    eig.message = (f"{eig.message} Returned as the fallback (fallback='eigenaxis'): the time-optimal route "
-                   f"gave no verified answer ({sol.message[:200]})")
+    eig.route = (f"{(sol.route or sol.method or 'the route')[:300]} → status {sol.status}, no verified "
+                 f"time-optimal answer → fallback: the eigenaxis slew")
+    eig.message = (f"{eig.message} Returned as the fallback (fallback='eigenaxis'); the time-optimal route "
+                   f"ended with status {sol.status}: {sol.message}")
     eig.nit, eig.nfev = eig.nit + sol.nit, eig.nfev + sol.nfev
-    eig.candidates_tf = list(sol.candidates_tf or [])
     eig.warm_start = sol.warm_start
     eig.wall_time = time.perf_counter() - t0
     return eig

@@ -346,7 +346,7 @@ def bang_bang_cone_answer(problem, col, time_budget=1.0, tols=None):
     _compile_kernels()      # (a fresh install compiles them once: not on this step's budget)
     t0 = time.perf_counter()
     return answer_from_collocation(problem, col, AttitudeBVP(problem.replace(cones=())), optimise_switch_times_cones,
-                                   time_budget, tols, SLSQP_ITERATIONS, t0, PULSE_ROUNDS, share=True)[0]
+                                   time_budget, tols, SLSQP_ITERATIONS, t0, PULSE_ROUNDS, stop_at_kkt_only=True)[0]
 
 
 __all__ = ["optimise_switch_times_cones", "bang_bang_cone_answer", "switch_time_cones_applies"]

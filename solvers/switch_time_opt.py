@@ -341,24 +341,23 @@ def bang_bang_answer(problem, col, time_budget=0.5, tols=None):
 
 
 def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_iter, t0, pulse_rounds=None,
-                            share=False):
+                            stop_at_kkt_only=False):
     """``(answer, kkt_guess)`` of ``bang_bang_answer`` with the optimiser ``optimise`` (this
     module's, or ``switch_time_cones``' with the cones imposed) and the extra pulse pairs of
     each round (default ``PULSE_ROUNDS``), ``(None, None)`` when nothing is verified or it is
-    slower than ``col`` beyond ``col.tf_tol``. With ``share``, each round gets an equal share of
-    the time left (the last all of it), for an optimiser that uses all the time it gets."""
+    slower than ``col`` beyond ``col.tf_tol``. Each round gets the time left; the rounds stop when
+    one gains less than 1e-6 of tf, with ``stop_at_kkt_only`` only when that round ended at a KKT
+    point (an optimiser that returns its best feasible iterate when its time runs out says
+    nothing about what more pulses would gain)."""
     tau = bvp.tau
     sw = [np.asarray(s, float) / tau for s in col.switch_times]
     # more pulse pairs approximate a singular arc better: rounds with more, the fastest kept,
     # until a round gains less than 1e-6 (relative) or the time is spent
     r = None
-    rounds = PULSE_ROUNDS if pulse_rounds is None else tuple(pulse_rounds)
-    for k, extra in enumerate(rounds):
+    for extra in PULSE_ROUNDS if pulse_rounds is None else pulse_rounds:
         left = time_budget - (time.perf_counter() - t0)
         if left <= 0.0:
             break
-        if share:
-            left /= len(rounds) - k
         signs0, axes, times = sequence_from_samples(np.asarray(col.t) / tau, col.u, problem.torque_max, sw,
                                                     col.u_first, extra_pairs=extra)
         ri = optimise(problem, signs0, axes, times, col.tf / tau, time_budget=left, max_iter=max_iter, bvp=bvp)
@@ -366,7 +365,9 @@ def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_
             continue
         if r is not None and ri.T > r.T * (1.0 - 1e-6):
             r = ri if ri.T < r.T else r
-            break
+            if ri.converged or not stop_at_kkt_only:
+                break
+            continue
         r = ri
     if r is None:
         return None, None

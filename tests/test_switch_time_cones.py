@@ -236,7 +236,8 @@ def test_melton_r4_by_switch_times_from_a_start_on_the_cone_edge(alpha, theta, p
     fly the sensor to the target outside the cone."""
     prob = melton(alpha, theta)
     col = solvers.solve(prob, method="collocation")
-    sol = bang_bang_cone_answer(prob, col, time_budget=10.0)
+    # (a generous budget: its pulse rounds take ~1 s each on a quiet machine, 5x that on a busy one)
+    sol = bang_bang_cone_answer(prob, col, time_budget=60.0)
     assert sol is not None and sol.success and sol.method == "switch-time"
     assert sol.tf == pytest.approx(published, rel=3e-3)
     assert sol.tf <= col.tf + col.tf_tol

@@ -2,8 +2,9 @@
 
 Single problem::
 
-    slew solve PROBLEM.json [-o SOLUTION.json] [--method auto|indirect|multiple-shooting|collocation]
+    slew solve PROBLEM.json [-o SOLUTION.json] [--method auto|indirect|multiple-shooting|collocation|eigenaxis]
                [--segments N] [--max-candidates N] [--seed S] [--plot FIG.png] [--no-dense]
+               [--time-budget S] [--fallback eigenaxis]
 
 prints a short summary and, with ``-o``, writes the solution JSON
 (``SlewSolution.to_dict``: success, status, message, tf, costate0, switch_times,
@@ -11,7 +12,10 @@ u_first, nit, nfev, wall_time_s, method, route, guess, n_candidates, candidates_
 verification, problem, and the dense samples t, q, omega, u, costate unless
 ``--no-dense``). ``-o -`` writes the JSON to stdout (the summary then goes to stderr).
 Exit code: 0 on success, 1 when the solver reports ``success=False`` (the solution is
-still written), 2 on bad input.
+still written), 2 on bad input. ``--time-budget S`` holds for the whole solve; with
+``--fallback eigenaxis`` a rest-to-rest full-attitude problem without cones that gets no
+verified time-optimal answer within it gets the eigenaxis slew (``method: "eigenaxis"``,
+success, its route and message saying it is the fallback).
 
 Batch::
 
@@ -75,7 +79,8 @@ def add_arguments(p):
                    help="auto: return the learned guess's extremal at once, without running the collocation route "
                         "where it may be a local optimum (well above the predicted time, or near a half turn)")
     p.add_argument("--time-budget", type=float, metavar="S",
-                   help="seconds for the whole solve (default: the solver's, 20; collocation 60)")
+                   help="seconds for the whole solve (default: the solver's, 20; collocation 60; "
+                        "--method eigenaxis takes none)")
     p.add_argument("--fallback", choices=("eigenaxis",), default=None,
                    help="where no verified time-optimal answer comes within the budget, return the eigenaxis slew "
                         "(rest-to-rest, full attitude, no cones; verified, not time-optimal)")
