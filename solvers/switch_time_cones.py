@@ -160,9 +160,10 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             if feasible and gain > 0.0:
                 best = (v.copy(), "a KKT point" if res.success else f"SLSQP stopped ({res.message})",
                         bool(res.success), fracs.size, resid)
-            # done at a feasible KKT point, when a further round gains less than 1e-7 of tf,
-            # or when an infeasible iterate gives no new sample
-            if feasible and (res.success or gain < 1e-7 * v[n]) or (not feasible and add.size == 0):
+            # done at a feasible KKT point, when a further round gains less than 1e-7 of tf, or
+            # when SLSQP converged to an infeasible point that gives no new sample (at its
+            # iteration limit, the next round goes on from where it stopped)
+            if feasible and (res.success or gain < 1e-7 * v[n]) or (not feasible and add.size == 0 and res.success):
                 break
             if add.size:
                 fracs = np.unique(np.concatenate([fracs, add]))

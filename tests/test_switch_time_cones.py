@@ -210,7 +210,9 @@ def test_the_optimiser_keeps_its_budget():
     t0 = time.perf_counter()
     r = optimise_switch_times_cones(prob, s0, ax, tm, col.tf / bvp.tau, time_budget=0.1)
     assert time.perf_counter() - t0 < 0.1 + 0.4       # the check comes between evaluations
-    assert r.success or "time budget" in r.message
+    # a feasible iterate within 0.1 s, or the reason there is none (the budget, or a round that
+    # ended infeasible)
+    assert r.success or "time budget" in r.message or "after the polish" in r.message
 
 
 def test_an_active_rate_limit_is_left_to_collocation():
