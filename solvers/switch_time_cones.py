@@ -43,7 +43,8 @@ from .attitude_bvp import AttitudeBVP
 from .core.attitude_flow import MODE_BANG
 from .core.cone_penalty import cone_matrix, sampled_margins
 from .core.switch_sequence import sequence_samples
-from .switch_time_opt import SwitchTimeOptResult, _start_state, checked_sequence, order_constraints
+from .switch_time_opt import (SwitchTimeOptResult, _start_state, checked_sequence, evaluated_sequence,
+                              order_constraints)
 
 BASE_SAMPLES = 64       # evenly spaced sample instants (fractions of tf) in the first round
 DENSE_SAMPLES = 4000    # the dense pass that finds the margin's minima between samples
@@ -177,15 +178,9 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
                                    math.inf, stats["nit"], stats["nfev"])
     v, note, converged, n_samples, resid = best
     note += f"; {n_samples} samples, {rnd} round(s)"
-    keep = v[:n] < v[n]
-    early = v[:n] <= 0.0
-    signs0 = signs0.copy()
-    for a in axes[keep & early]:
-        signs0[int(a)] = -signs0[int(a)]
-    keep &= ~early
-    return SwitchTimeOptResult(True, note, float(v[n]), v[:n][keep].copy(),
-                               axes[keep].copy(), signs0, resid, stats["nit"], stats["nfev"], np.full(6, np.nan),
-                               math.nan, converged)
+    times_kept, axes_kept, signs0 = evaluated_sequence(v, axes, signs0)
+    return SwitchTimeOptResult(True, note, float(v[n]), times_kept, axes_kept, signs0, resid, stats["nit"],
+                               stats["nfev"], np.full(6, np.nan), math.nan, converged)
 
 
 def keep_off(fracs, end_margins):
@@ -205,9 +200,7 @@ def _polish(evaluate, v):
     feasible): the violated samples are driven to a margin of ``POLISH_MARGIN``, the others
     are left as they are. A step is taken only if it lowers the infeasibility."""
     def infeasibility(out):
-        g = out[2]
-        return float(np.linalg.norm(out[0])) + float(np.maximum(0.0, -g).sum()) if g.size else \
-            float(np.linalg.norm(out[0]))
+        return float(np.linalg.norm(out[0])) + float(np.maximum(0.0, -out[2]).sum())
 
     out = evaluate(v, True)
     for _ in range(10):
@@ -307,8 +300,6 @@ def _compile_kernels():
     X, dX, *_ = sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3),
                                  np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), True)
     sampled_margins(X, dX, np.eye(4)[None, :, :], np.array([0.1]))
-    sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3), np.array([0.5]), J, J,
-                     MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), False)
     _COMPILED.append(True)
 
 

@@ -147,16 +147,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     resid = float(np.linalg.norm(r))
     if fail is None and not (resid < 1e-10):
         fail = f"boundary residual {resid:.2e} after the polish"
-    # (an axis's control depends only on the set of its flip instants: switches that the polish
-    # left out of order by rounding describe the same control, and the forward pass sorts them.
-    # One at or past tf is no switch; one at or before 0 flips the first arc's sign: the
-    # sequence is rewritten so, which is the control that was evaluated)
-    keep = v[:n] < v[n]
-    early = v[:n] <= 0.0
-    signs0 = signs0.copy()
-    for a in axes[keep & early]:
-        signs0[int(a)] = -signs0[int(a)]
-    keep &= ~early
+    times_kept, axes_kept, signs0 = evaluated_sequence(v, axes, signs0)
     # KKT: e_T = J_rᵀ ν + A_actᵀ μ, by least squares, with the active inequalities (zero-width
     # pulses, instants at 0 or T); its residual measures stationarity
     act = A[np.abs(A @ v) <= 1e-10 * max(1.0, float(v[n]))] if A.shape[0] else np.zeros((0, n + 1))
@@ -173,7 +164,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     nz = float(np.linalg.norm(z))
     z = z / nz if nz > 0 else np.full(6, np.nan)
     ok = fail is None
-    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), v[:n][keep].copy(), axes[keep].copy(), signs0,
+    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), times_kept, axes_kept, signs0,
                                resid, stats["nit"], stats["nfev"], z, kkt, converged)
 
 
@@ -192,6 +183,21 @@ def checked_sequence(signs0, axes, times, T):
     if not (math.isfinite(float(T)) and float(T) > 0.0) or not np.all(np.isfinite(times)):
         raise ValueError(f"T, times: need a positive final time and finite switch instants, got T={T}")
     return signs0, axes.astype(np.int64), times
+
+
+def evaluated_sequence(v, axes, signs0):
+    """``(times, axes, signs0)`` of the control that ``[times, T] = v`` evaluates. An axis's
+    control depends only on the set of its flip instants: switches that a polish left out of
+    order by rounding describe the same control, and the forward pass sorts them. One at or
+    past ``T`` is no switch; one at or before 0 flips the first arc's sign."""
+    n = axes.shape[0]
+    keep = v[:n] < v[n]
+    early = v[:n] <= 0.0
+    signs0 = np.array(signs0, dtype=float)
+    for a in axes[keep & early]:
+        signs0[int(a)] = -signs0[int(a)]
+    keep &= ~early
+    return v[:n][keep].copy(), axes[keep].copy(), signs0
 
 
 def order_constraints(axes):
