@@ -238,6 +238,23 @@ def ext_jac_into(y, J, dudl, A):
 
 
 @njit(cache=True)
+def sensitivity_rate_into(A, Y, n, m, out):
+    """``Φ̇ = A Φ`` for the ``n × m`` sensitivity block stored row-major after the ``n`` state
+    components of ``Y``, written at the same place in ``out``. ``A`` (at least ``n × n``) is
+    about half zeros, which are skipped; a BLAS call costs more than it saves at this size."""
+    for i in range(n):
+        base = n + i * m
+        for c in range(m):
+            out[base + c] = 0.0
+        for k in range(n):
+            a = A[i, k]
+            if a != 0.0:
+                kb = n + k * m
+                for c in range(m):
+                    out[base + c] += a * Y[kb + c]
+
+
+@njit(cache=True)
 def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, pen, out, A):
     """Derivative of ``[y, Φ]`` (Φ row-major 14 x m), written into ``out``; ``A`` is a
     14x14 work array that started as zeros (see ``ext_jac_into``). ``pen`` is a packed
@@ -256,17 +273,7 @@ def full_rhs_into(Y, m, J, umax, mode, p, eps, signs, pen, out, A):
         ext_jac_into(y, J, dudl, A)
         if pen.shape[0] > 0:
             penalty_jac_into(y, pen, A)
-        # Φ̇ = A Φ; A is about half zeros, and the BLAS call costs more than it saves here
-        for i in range(NY):
-            base = NY + i * m
-            for c in range(m):
-                out[base + c] = 0.0
-            for k in range(NY):
-                a = A[i, k]
-                if a != 0.0:
-                    kb = NY + k * m
-                    for c in range(m):
-                        out[base + c] += a * Y[kb + c]
+        sensitivity_rate_into(A, Y, NY, m, out)
 
 
 @njit(cache=True)
@@ -278,6 +285,30 @@ def full_rhs(Y, m, J, umax, mode, p, eps, signs, pen):
 
 
 @njit(cache=True)
+def dop853_stage_input(Y, K, s, h, Ys):
+    """``Ys = Y + h Σ_j A[s, j] K[j]``: the input of stage ``s`` (``K`` holds the stages before)."""
+    for i in range(Y.shape[0]):
+        acc = 0.0
+        for j in range(s):
+            a = _A[s, j]
+            if a != 0.0:
+                acc += a * K[j, i]
+        Ys[i] = Y[i] + h * acc
+
+
+@njit(cache=True)
+def dop853_solution(Y, K, h):
+    """The 8th-order solution ``Y + h Σ_j B[j] K[j]`` of a step with the stages ``K``."""
+    Ynew = np.empty(Y.shape[0])
+    for i in range(Y.shape[0]):
+        acc = 0.0
+        for j in range(_NS):
+            acc += _B[j] * K[j, i]
+        Ynew[i] = Y[i] + h * acc
+    return Ynew
+
+
+@njit(cache=True)
 def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, pen, K0):
     """One DOP853 step; returns ``(Y_new, K)`` with the 13 stage derivatives in ``K``."""
     n = Y.shape[0]
@@ -286,29 +317,21 @@ def _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, pen, K0):
     A = np.zeros((NY, NY))
     K[0] = K0
     for s in range(1, _NS):
-        for i in range(n):
-            acc = 0.0
-            for j in range(s):
-                a = _A[s, j]
-                if a != 0.0:
-                    acc += a * K[j, i]
-            Ys[i] = Y[i] + h * acc
+        dop853_stage_input(Y, K, s, h, Ys)
         full_rhs_into(Ys, m, J, umax, mode, p, eps, signs, pen, K[s], A)
-    Ynew = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(_NS):
-            acc += _B[j] * K[j, i]
-        Ynew[i] = Y[i] + h * acc
+    Ynew = dop853_solution(Y, K, h)
     full_rhs_into(Ynew, m, J, umax, mode, p, eps, signs, pen, K[12], A)
     return Ynew, K
 
 
 @njit(cache=True)
-def _err_norm(Y, Ynew, K, h, rtol, atol):
+def err_norm(Y, Ynew, K, h, rtol, atol, n):
+    """DOP853's error norm over the first ``n`` components, normalised by ``NY``: the augmented
+    state's (``n = NY``), or the state's alone (``n = 7``), which is the augmented state's when
+    its costates are zero (their error terms vanish)."""
     e5 = 0.0
     e3 = 0.0
-    for i in range(NY):
+    for i in range(n):
         sc = atol + rtol * max(abs(Y[i]), abs(Ynew[i]))
         a5 = 0.0
         a3 = 0.0
@@ -375,7 +398,7 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
             break
         Ynew, K = _dop853_step(Y, h, m, J, umax, mode, p, eps, signs, pen, K0)
         steps += 1
-        err = _err_norm(Y, Ynew, K, h, rtol, atol)
+        err = err_norm(Y, Ynew, K, h, rtol, atol, NY)
         if not (err == err) or not np.isfinite(Ynew[0]):
             h *= 0.25
             if h < 1e-14:

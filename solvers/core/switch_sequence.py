@@ -14,7 +14,8 @@ ignores the sensitivities), so the arcs take the same steps as before.
 import numpy as np
 from numba import njit
 
-from .attitude_flow import FLOW_OK, NY, ext_rhs, flow
+from .attitude_flow import FLOW_OK, MODE_BANG, NY, ext_rhs, flow
+from .state_arc import state_arc
 
 
 @njit(cache=True)
@@ -33,9 +34,24 @@ def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
 
 
 @njit(cache=True)
+def _zero_costates(y):
+    for i in range(7, NY):
+        if y[i] != 0.0:
+            return False
+    return True
+
+
+@njit(cache=True)
 def _arc_transition(y, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
     """One arc of fixed ``signs`` over ``dt`` from the augmented state ``y``, with the state's
-    7×7 transition matrix when ``m`` is 7 (zeros when 0): ``(y(dt), Φ, ok)``."""
+    7×7 transition matrix when ``m`` is 7 (zeros when 0): ``(y(dt), Φ, ok)``. With zero
+    costates and no cone penalty the costates stay zero, and the state flows alone
+    (``state_arc``: the same steps and states, half the work with ``Φ``)."""
+    if mode == MODE_BANG and pen.shape[0] == 0 and _zero_costates(y):
+        x, Phi, ok = state_arc(y, dt, umax * signs, J, rtol, atol, m > 0)
+        out = np.zeros(NY)
+        out[:7] = x
+        return out, Phi, ok
     Y0 = np.zeros(NY + NY * m)
     Y0[:NY] = y
     for c in range(m):
