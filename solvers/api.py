@@ -54,6 +54,7 @@ import numpy as np
 
 from slew_env import SlewProblem
 from .attitude_bvp import AttitudeBVP
+from .blas_threads import single_threaded_blas
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solution_fields, solve_structure
 from .shooting import newton_shoot
@@ -325,6 +326,12 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     baseline, ``SlewSolution.baseline_tf``) is a local optimum: it is returned with
     ``success=False`` and status 4, never as the answer.
     """
+    with single_threaded_blas():
+        return _solve(problem, method, guess, warm_start, **options)
+
+
+def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
+    """``solve`` with the BLAS libraries at one thread (``blas_threads``)."""
     prob = SlewProblem.from_dict(problem)   # a SlewProblem passes through
     if method not in METHODS:
         raise ValueError(f"method: unknown method {method!r}; choose one of {', '.join(METHODS)}")
