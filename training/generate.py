@@ -148,7 +148,9 @@ def solve_warm(problem, model=None, fallback=False, **options):
     prob = SlewProblem.from_dict(problem)
     if fallback:
         return solvers.solve(prob, warm_start=model or "default", **options)
-    sol, info, _ = _warm_start(prob, "indirect", model or "default", options)
+    from solvers.blas_threads import single_threaded_blas
+    with single_threaded_blas():      # as inside solvers.solve
+        sol, info, _ = _warm_start(prob, "indirect", model or "default", options)
     if sol is None and info.get("covered") is False:
         raise ValueError(f"warm start: the model does not cover this problem ({info.get('reason')})")
     if sol is None:

@@ -68,7 +68,14 @@ def _init(model_path, nn_path):
 
 
 def _run_one(args):
-    family, seed, index, guesses, budget, warm_budget = args
+    """Every guess of ``args`` on one problem, with one BLAS thread, as inside ``solvers.solve``
+    (these routes are called directly)."""
+    from solvers.blas_threads import single_threaded_blas
+    with single_threaded_blas():
+        return _run_guesses(*args)
+
+
+def _run_guesses(family, seed, index, guesses, budget, warm_budget):
     from solvers import Guess
     from solvers.api import _solve_indirect, _warm_start
     from solvers.warmstart.features import canonical_form, solution_from_canonical
