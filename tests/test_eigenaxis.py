@@ -90,3 +90,46 @@ def test_baseline_time_of_an_asymmetric_body_off_axis_is_unchanged():
     prob = _prob([1.0, 0.6, 0.3], [1, 1, 1], 2.5, torque_max=[1.0, 0.8, 0.5])
     from solvers.eigenaxis import eigenaxis_time
     assert eigenaxis_time(prob, n_grid=4000) == pytest.approx(eigenaxis_slew(prob, n_grid=4000).tf, rel=1e-12)
+
+
+@pytest.mark.parametrize("p", [1.2, 2.0, 3.0, 7.0])
+def test_pnorm_feasible_interval_edges_against_a_dense_scan(p):
+    """The feasible accelerations at a speed under a p-norm bound: the edges found by false
+    position sit on the feasible side of the sublevel set's true edges (a dense scan of the
+    norm), within 1e-12 of them."""
+    from solvers.core.eigenaxis_topp import _pnorm_of, accel_interval, accel_interval_pnorm
+    rng = np.random.default_rng(int(p * 10))
+    checked = 0
+    for _ in range(60):
+        a = rng.normal(size=3)
+        c = rng.normal(size=3) * 0.5
+        U = rng.uniform(0.3, 1.5, 3)
+        s = float(rng.uniform(0.0, 1.0))
+        lo, hi, ok = accel_interval_pnorm(a, c, U, p, s)
+        x = np.linspace(*accel_interval(a, c, U, s)[:2], 20001) if accel_interval(a, c, U, s)[2] else np.zeros(0)
+        inside = x[[_pnorm_of(v, a, c, U, p, s) <= 1.0 for v in x]]
+        if not ok:
+            assert inside.size == 0
+            continue
+        checked += 1
+        assert _pnorm_of(lo, a, c, U, p, s) <= 1.0 + 1e-12 and _pnorm_of(hi, a, c, U, p, s) <= 1.0 + 1e-12
+        step = x[1] - x[0]
+        assert inside.min() - step <= lo <= inside.min() + 1e-12
+        assert inside.max() - 1e-12 <= hi <= inside.max() + step
+        w = 1e-9 * max(1.0, hi - lo)
+        if lo - w > x[0]:
+            assert _pnorm_of(lo - w, a, c, U, p, s) > 1.0
+        if hi + w < x[-1]:
+            assert _pnorm_of(hi + w, a, c, U, p, s) > 1.0
+    assert checked > 30
+
+
+REF_PNORM_TIME = 2.4666369400956136   # commit eab27e4 (golden section and bisection)
+
+
+def test_pnorm_baseline_time_unchanged():
+    """The eigenaxis time of an asymmetric body under a 2-norm bound, as the golden-section and
+    bisection sweep gave it before the false-position edges (to 1e-12)."""
+    from solvers.eigenaxis import eigenaxis_time
+    prob = _prob([1.0, 0.6, 0.35], [0.3, -0.5, 0.8], 2.2, torque_max=[1.0, 0.8, 0.6], torque_norm=2.0)
+    assert eigenaxis_time(prob, n_grid=1000) == pytest.approx(REF_PNORM_TIME, rel=1e-12)
