@@ -153,17 +153,10 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
         return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)))
     theta = np.linspace(0.0, th, n_grid + 1)
     dth = theta[1] - theta[0]
-    fixed = _accel_interval(a, c, U, p, 0.0) if not np.any(c) else None
-
-    def interval(s):
-        # without a gyroscopic term the feasible accelerations do not depend on the rate
-        return fixed if fixed is not None else _accel_interval(a, c, U, p, min(s, s_max))
-
     Uc = np.ascontiguousarray(U, float)
-    if math.isinf(p):   # the compiled sweeps (this baseline runs on every indirect solve)
+    # the compiled sweeps (the baseline runs on every indirect solve, the slew on every fallback)
+    if math.isinf(p):
         fwd, bwd = topp.sweep_per_axis(a, c, Uc, float(s_max), float(th), int(n_grid))
-    elif fixed is not None:   # no gyroscopic term: one interval for every speed
-        fwd, bwd = _sweep_python(interval, s_max, dth, n_grid)
     else:
         fwd, bwd = topp.sweep_pnorm(a, c, Uc, float(p), float(s_max), float(th), int(n_grid))
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
@@ -180,32 +173,3 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     worse = np.max(np.abs(u_end) / U, axis=1) > np.max(np.abs(u_start) / U, axis=1)
     u[:-1][worse] = u_end[worse]
     return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u)
-
-
-def _sweep_python(interval, s_max, dth, n_grid):
-    """The phase-plane sweeps for p-norm bounds (see ``core.eigenaxis_topp.sweep_per_axis``)."""
-    def amax(s):
-        iv = interval(s)
-        return iv[1] if iv is not None else 0.0
-
-    def amin(s):
-        iv = interval(s)
-        return iv[0] if iv is not None else 0.0
-
-    fwd = np.zeros(n_grid + 1)
-    bwd = np.zeros(n_grid + 1)
-    # ds/dθ = 2 θ̈ with θ̈ constant on each grid interval and feasible at BOTH of its
-    # ends, so the sampled torques never exceed the bound (conservative by O(dθ))
-    for k in range(n_grid):
-        s = fwd[k]
-        acc = amax(s)
-        for _ in range(3):
-            acc = min(acc, amax(min(s + 2.0 * dth * acc, s_max)))
-        fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
-    for k in range(n_grid, 0, -1):
-        s = bwd[k]
-        dec = amin(s)
-        for _ in range(3):
-            dec = max(dec, amin(min(s - 2.0 * dth * dec, s_max)))
-        bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
-    return fwd, bwd
