@@ -1555,4 +1555,4 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     status = STATUS_BUDGET_EXHAUSTED if time.perf_counter() > deadline else STATUS_NOT_CONVERGED
     detail = "; ".join(failures[:3])
     return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} Tried {tried} candidate(s): {detail}",
-                        wall_time=wall, **common)
+                        wall_time=wall, route=f"{method_used}: no candidate converged ({tried} tried)", **common)

@@ -1620,8 +1620,13 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         # nothing to compare with the eigenaxis slew (planning it takes up to 0.1 s for a p-norm
         # bound, after the time budget has run out)
         status = STATUS_BUDGET_EXHAUSTED if budget_hit else STATUS_NOT_CONVERGED
-        return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} IPOPT: " + "; ".join(failures),
-                            nit=nit, nfev=nfev, wall_time=time.perf_counter() - t_start, **common)
+        what = ("IPOPT: " + "; ".join(failures)) if failures else (
+            f"No start was solved ({len(starts)} planned; the time budget ran out before the first)")
+        return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} {what}", nit=nit, nfev=nfev,
+                            wall_time=time.perf_counter() - t_start,
+                            route="Hermite–Simpson: " + ("no start converged" if failures else
+                                                          "the time budget ran out before the first start"),
+                            **common)
     baseline = math.nan
     if prob.is_rest_to_rest and prob.qf is not None and finals:
         from .eigenaxis import eigenaxis_slew

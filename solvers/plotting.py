@@ -200,7 +200,8 @@ def plot_sensor_path(sol, path=None, dpi=120):
         c = c / np.linalg.norm(c)
         ax.view_init(elev=float(np.degrees(np.arcsin(np.clip(c[2], -1.0, 1.0)))),
                      azim=float(np.degrees(np.arctan2(c[1], c[0]))))
-    ax.set_title("sensor direction (inertial)", fontsize=10, loc="left")
+    # a 3-D axes' title sits among its tick labels: the figure's coordinates keep it above them
+    fig.text(0.06, 0.9, "sensor direction (inertial)", fontsize=10)
     ax.legend(loc="upper left", fontsize=8)
 
     axm = fig.add_subplot(1, 2, 2)

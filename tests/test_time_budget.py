@@ -45,6 +45,16 @@ def test_collocation_with_its_budget_spent_says_so(touch_col):
     assert "budget" in sol.message.lower()
     # nothing converged: no eigenaxis slew is planned for the comparison
     assert math.isnan(sol.baseline_tf)
+    # and it says what ran out where, not an empty route and a message ending "IPOPT: "
+    assert sol.route.startswith("Hermite–Simpson: ")
+    assert not sol.message.rstrip().endswith("IPOPT:")
+
+
+def test_indirect_with_its_budget_spent_has_a_route():
+    moving = FULL.replace(omega0=[0.05, 0.0, 0.0])
+    sol = solvers.solve(moving, method="indirect", warm_start=None, time_budget=1e-3)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert sol.route.startswith("indirect: no candidate converged")
 
 
 def test_auto_with_cones_keeps_a_short_budget(touch_col):
