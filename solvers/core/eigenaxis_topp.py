@@ -60,10 +60,15 @@ def _sweep(a, c, U, p, s_max, th, n_grid):
     dth = th / n_grid
     fwd = np.zeros(n_grid + 1)
     bwd = np.zeros(n_grid + 1)
+    # without a gyroscopic term the interval does not depend on the speed: found once (the
+    # rounds below would stop at their first repeat anyway)
+    gyro = c[0] != 0.0 or c[1] != 0.0 or c[2] != 0.0
+    fixed_hi = 0.0 if gyro else _amax(a, c, U, p, 0.0, s_max)
+    fixed_lo = 0.0 if gyro else _amin(a, c, U, p, 0.0, s_max)
     for k in range(n_grid):
         s = fwd[k]
-        acc = _amax(a, c, U, p, s, s_max)
-        for _ in range(3):
+        acc = _amax(a, c, U, p, s, s_max) if gyro else fixed_hi
+        for _ in range(3 if gyro else 0):
             nxt = min(acc, _amax(a, c, U, p, min(s + 2.0 * dth * acc, s_max), s_max))
             if nxt == acc:      # a fixed point: further rounds repeat the same evaluation
                 break
@@ -71,8 +76,8 @@ def _sweep(a, c, U, p, s_max, th, n_grid):
         fwd[k + 1] = min(s + 2.0 * dth * max(acc, 0.0), s_max)
     for k in range(n_grid, 0, -1):
         s = bwd[k]
-        dec = _amin(a, c, U, p, s, s_max)
-        for _ in range(3):
+        dec = _amin(a, c, U, p, s, s_max) if gyro else fixed_lo
+        for _ in range(3 if gyro else 0):
             nxt = max(dec, _amin(a, c, U, p, min(s - 2.0 * dth * dec, s_max), s_max))
             if nxt == dec:
                 break
