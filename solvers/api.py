@@ -1206,6 +1206,14 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
                        f"bang-bang refinement was not certified.")
         col.wall_time = spent()
         return col
+    if budget - spent() <= 0.0:
+        # the budget is spent: no multi-start (its first candidate always runs, past the budget)
+        col.status = STATUS_BUDGET_EXHAUSTED
+        if not col.message.startswith(STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]):
+            col.message = f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} Collocation: {col.message}"
+        col.route = f"auto: collocation ({col.route}); no time left for the indirect multi-start"
+        col.wall_time = spent()
+        return col
     ind = _solve_indirect(prob, "indirect", guess, **dict(options, time_budget=_left(budget, spent())))
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()

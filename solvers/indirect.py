@@ -180,8 +180,10 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
     if not path.success:
         return Attempt(False, z, T, None, nit, nfev, "tanh continuation", path.message)
     last = path.points[-1]
+    # the diagnosis records the path (~10 ms): not past the caller's deadline
     msg = (f"no bang-bang structure near the smoothed extremal (eps = {last.param:.3g}, "
-           f"tf = {last.T * bvp.tau:.9g})" + singular_diagnosis(bvp, last.z, last.T, last.param))
+           f"tf = {last.T * bvp.tau:.9g})" + (singular_diagnosis(bvp, last.z, last.T, last.param)
+                                              if time.perf_counter() <= deadline else ""))
     return Attempt(False, last.z, last.T, None, nit, nfev, "tanh continuation", msg)
 
 

@@ -86,3 +86,16 @@ def test_touch_refinement_stops_at_the_callers_deadline(touch_col):
     assert "time budget ran out" in sol.message
     full = api._refine_touching_cones(TOUCH, touch_col, {})
     assert full.success and full.status == STATUS_SUCCESS
+
+
+def test_auto_starts_no_multi_start_once_the_budget_is_spent(monkeypatch):
+    """Collocation stopped by the budget: the classical multi-start (whose first candidate always
+    runs) is not started past it."""
+    solvers.solve(FULL, warm_start=None, method="collocation")     # the NLP templates, built
+    called = []
+    monkeypatch.setattr(api, "_solve_indirect", lambda *a, **k: called.append(1))
+    sol = solvers.solve(FULL, warm_start=None, time_budget=1e-3)
+    assert not called
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "no time left for the indirect multi-start" in sol.route
+    assert sol.message.startswith("Time budget exhausted")
