@@ -148,10 +148,11 @@ def test_the_optimiser_keeps_out_of_the_cones_it_is_given():
     assert r.T * bvp.tau < sol.tf
 
 
-def test_tf_tol_never_below_collocations_own_tolerance():
+def test_tf_tol_below_collocations_bracket_is_collocations_own_tolerance():
     """An answer faster than collocation's lower bracket (``tf < col.tf - col.tf_tol``) shows the
     bracket was not one; its ``tf_tol`` (how far below ``tf`` the optimum may be) is then
-    collocation's tolerance, not the 1e-10 · tf floor it collapsed to (audit, session 24)."""
+    collocation's tolerance, not the 1e-10 · tf floor it collapsed to (audit, session 24). Inside
+    the bracket it is the distance to its lower end (``test_switch_time_opt``)."""
     prob = SlewProblem.from_dict(RIDES)
     col = solvers.solve(prob, method="collocation")
     col.tf_tol = 1e-9 * col.tf          # a bracket the switch-time answer beats
