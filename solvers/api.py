@@ -416,6 +416,14 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
                     neighbours_bang, sol = sol, None
             if sol is None:      # its time comes out of the rest of the budget
                 rest["time_budget"] = _left(rest["time_budget"], time.perf_counter() - t_table)
+        if sol is None and info and float(options.get("time_budget", 20.0)) <= time.perf_counter() - t0:
+            # the learned stage spent the budget: no route (building an NLP is not interruptible)
+            sol = SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
+                               f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} The learned guess's candidates used "
+                               "the whole time budget.", 0, 0, time.perf_counter() - t0, method="indirect",
+                               problem=prob, route="no time left for the default route")
+            if neighbours_bang is not None:
+                sol = _faster_verified(sol, neighbours_bang)
         if sol is None:
             sol = _solve_auto(prob, guess, col_opts, rest, refine_cap=REFINE_CAP_AFTER_WARM if failed_warm else 2.0,
                               later=later, warm_info=info,

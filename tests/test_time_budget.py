@@ -99,3 +99,24 @@ def test_auto_starts_no_multi_start_once_the_budget_is_spent(monkeypatch):
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "no time left for the indirect multi-start" in sol.route
     assert sol.message.startswith("Time budget exhausted")
+
+
+def test_auto_runs_no_route_after_the_learned_stage_spent_the_budget(monkeypatch):
+    """The learned candidates used the whole budget: the default route (collocation, whose NLP
+    build is not interruptible) does not start; the answer says the budget ran out."""
+    from solvers.solution import SlewSolution
+
+    def slow_warm(prob, method, warm_start, options, split=False):
+        time.sleep(0.03)
+        failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "candidates stopped", 1, 1, 0.03, problem=prob)
+        return failed, {"covered": True, "succeeded": False}, None
+    monkeypatch.setattr(api, "_warm_start", slow_warm)
+    monkeypatch.setattr(api, "_singular_table_route", lambda *a, **k: (None, (0, 0)))
+    monkeypatch.setattr(api, "_table_votes_bang_bang", lambda info: False)
+
+    def no_route(*a, **k):
+        raise AssertionError("the route ran past the budget")
+    monkeypatch.setattr(api, "_solve_auto", no_route)
+    sol = solvers.solve(FULL, time_budget=0.02)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "no time left for the default route" in sol.route
