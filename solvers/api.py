@@ -419,8 +419,9 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         if sol is None and info and float(options.get("time_budget", 20.0)) <= time.perf_counter() - t0:
             # the learned stage spent the budget: no route (building an NLP is not interruptible)
             sol = SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
-                               f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} The learned guess's candidates used "
-                               "the whole time budget.", 0, 0, time.perf_counter() - t0, method="indirect",
+                               f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} The learned guess's candidates (and "
+                               "the singular table's routes, where they ran) used the whole time budget.",
+                               spent_table[0], spent_table[1], time.perf_counter() - t0, method="indirect",
                                problem=prob, route="no time left for the default route")
             if neighbours_bang is not None:
                 sol = _faster_verified(sol, neighbours_bang)

@@ -1621,11 +1621,13 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         # bound, after the time budget has run out)
         status = STATUS_BUDGET_EXHAUSTED if budget_hit else STATUS_NOT_CONVERGED
         what = ("IPOPT: " + "; ".join(failures)) if failures else (
-            f"No start was solved ({len(starts)} planned; the time budget ran out before the first)")
+            f"No start was solved ({len(starts)} planned"
+            + ("; the time budget ran out before the first)" if budget_hit else ")"))
         return SlewSolution(False, status, f"{STATUS_MESSAGES[status]} {what}", nit=nit, nfev=nfev,
                             wall_time=time.perf_counter() - t_start,
                             route="Hermite–Simpson: " + ("no start converged" if failures else
-                                                          "the time budget ran out before the first start"),
+                                                          "the time budget ran out before the first start"
+                                                          if budget_hit else "no start solved"),
                             **common)
     baseline = math.nan
     if prob.is_rest_to_rest and prob.qf is not None and finals:

@@ -382,13 +382,15 @@ def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_
         return None, None
     tf = r.T * tau
     # tf_tol: how far below tf the optimum may be, as far as collocation tells: down to its lower
-    # bracket; an answer below that bracket shows the bracket was not one (collocation sat in a
-    # slower local optimum, or its tf_tol was short), and then collocation's own tolerance
+    # bracket, and never less than half collocation's tolerance, since that end is an estimate
+    # too (N against N / 2 intervals): an answer at or below it would otherwise claim a
+    # certainty nothing measured (1e-10 · tf), and a slightly looser collocation would make it
+    # jump from there to the whole tolerance
     lower = col.tf - col_tol
     comparison = f"against collocation's {col.tf:.9g} ± {col_tol:.1g}"
     answer, kkt_guess = _answer(problem, bvp, r, tols, "collocation's sequence", f" vs collocation's {col.tf:.9g} "
                                 f"± {col_tol:.1g}", comparison, lambda att: max(
-                                    tf - lower if tf > lower else col_tol, tf * max(1e-10, 10.0 * att)),
+                                    tf - lower, 0.5 * col_tol, tf * max(1e-10, 10.0 * att)),
                                 np.array(col.costate0, float), t0)
     if answer is not None:
         answer.nit += int(col.nit)

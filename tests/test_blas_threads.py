@@ -47,3 +47,18 @@ def test_setting_restored_when_the_solve_raises():
         with pytest.raises(ValueError, match="method"):
             solve(_problem(), method="no-such-method")
         assert _blas_threads() == before
+
+
+def test_overlapping_solves_restore_the_setting_when_the_last_one_leaves():
+    """Solves in two Python threads overlap (A in, B in, A out, B out): B keeps one thread after
+    A leaves, and the setting found before A comes back after B."""
+    from solvers.blas_threads import single_threaded_blas
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_threads()
+        a, b = single_threaded_blas(), single_threaded_blas()
+        a.__enter__()
+        b.__enter__()
+        a.__exit__(None, None, None)
+        assert all(n == 1 for n in _blas_threads().values())
+        b.__exit__(None, None, None)
+        assert _blas_threads() == before

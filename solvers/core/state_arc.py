@@ -7,7 +7,8 @@ and no cone penalty acts they stay zero, so half of that work is spent on zeros.
 integrates the 7 state components and, if asked, ``Φ = ∂x(dt)/∂x(0)`` (7×7), with the same
 Dormand–Prince 8(5,3) steps: the error norm is the augmented flow's with zero costates (their
 terms vanish, the normalisation by 14 stays), so both take the same steps and give the same
-states, at about half the cost with the transition matrix.
+states, at about half the cost with the transition matrix. (With ``atol = 0``, which no caller
+uses, the augmented flow's zero costates make its norm 0/0 and it fails, where this one does not.)
 """
 import numpy as np
 from numba import njit
