@@ -315,7 +315,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``fallback`` (default None): ``"eigenaxis"`` returns, where the route ends without a verified
     answer (the ``time_budget`` ran out, or nothing converged), the eigenaxis slew of a
     rest-to-rest full-attitude problem without cones (``method="eigenaxis"``, verified by its
-    replay, not time-optimal; planned after the budget, ~10 ms for a per-axis bound): a flyable
+    replay, not time-optimal; planned after the budget, 12–24 ms for a per-axis bound): a flyable
     answer for on-board use under a hard budget. The route's message says why it was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
@@ -458,7 +458,7 @@ def _eigenaxis_fallback(prob, sol, t0) -> SlewSolution:
     """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
     ran out, or nothing converged), the eigenaxis slew of a rest-to-rest full-attitude problem
     without cones (``eigenaxis_answer``: what most spacecraft fly today, verified by its replay;
-    ~10 ms for a per-axis bound, after the budget). ``sol`` unchanged, its message saying why,
+    12–24 ms for a per-axis bound, after the budget). ``sol`` unchanged, its message saying why,
     where the fallback does not apply or fails."""
     if prob.cones or prob.qf is None or not prob.is_rest_to_rest:
         why = "keep-out cones" if prob.cones else ("a pointing target" if prob.qf is None else "non-zero rates")

@@ -18,7 +18,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
 
 from slew_env import SlewProblem
 from .core import eigenaxis_topp as topp
@@ -34,29 +33,6 @@ class EigenaxisSlew:
     t: np.ndarray           # time at each sample
     rate: np.ndarray        # θ̇ at each sample
     u: np.ndarray           # torque on each grid interval (worse end), last row the final torque
-
-
-def _accel_interval(a, c, U, p, s):
-    """Interval of feasible θ̈ at phase-plane speed ``s``; ``None`` when empty."""
-    # the per-axis interval; for a p-norm it brackets the feasible set
-    lo, hi, ok = topp.accel_interval(a, c, U, float(s))
-    if not ok:
-        return None
-    if math.isinf(p):
-        return lo, hi
-
-    def g(x):
-        v = np.abs((a * x + c * s) / U)
-        m = float(np.max(v))
-        return m * float(np.sum((v / m) ** p)) ** (1.0 / p) if m > 0 else 0.0
-    # {x : g(x) ≤ 1} is an interval inside [lo, hi] (g convex): minimiser, then both edges
-    res = minimize_scalar(g, bounds=(lo, hi), method="bounded", options={"xatol": 1e-13 * max(1.0, hi - lo)})
-    xm = float(res.x)
-    if g(xm) > 1.0:
-        return None
-    left = lo if g(lo) <= 1.0 else brentq(lambda x: g(x) - 1.0, lo, xm, xtol=1e-15, rtol=1e-14)
-    right = hi if g(hi) <= 1.0 else brentq(lambda x: g(x) - 1.0, xm, hi, xtol=1e-15, rtol=1e-14)
-    return left, right
 
 
 def _phase_plane(problem: SlewProblem):
@@ -76,7 +52,7 @@ def _phase_plane(problem: SlewProblem):
     else:   # largest s with a non-empty acceleration interval, by bisection
         Uc = np.ascontiguousarray(U, float)
 
-        def feasible(sv):   # the compiled interval (``_accel_interval`` is its reference)
+        def feasible(sv):   # the compiled interval (tests/test_eigenaxis_answer.py has a scipy reference)
             return topp.accel_interval_pnorm(a, c, Uc, float(p), float(sv))[2]
         hi = 1.0
         while feasible(hi) and hi < 1e12:
@@ -136,10 +112,7 @@ def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
         # accelerations do not depend on the rate, so the profile is bang-(coast-)bang
         acc = topp.accel_interval(a, c, U, 0.0)[1] if math.isinf(p) else topp.accel_interval_pnorm(a, c, U, p, 0.0)[1]
         return _constant_accel_time(th, acc, s_max)
-    if math.isinf(p):
-        fwd, bwd = topp.sweep_per_axis(a, c, U, float(s_max), float(th), int(n_grid))
-    else:
-        fwd, bwd = topp.sweep_pnorm(a, c, U, p, float(s_max), float(th), int(n_grid))
+    fwd, bwd = topp.sweep(a, c, U, p, float(s_max), float(th), int(n_grid))
     return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
 
 
@@ -153,12 +126,8 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
         return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)))
     theta = np.linspace(0.0, th, n_grid + 1)
     dth = theta[1] - theta[0]
-    Uc = np.ascontiguousarray(U, float)
     # the compiled sweeps (the baseline runs on every indirect solve, the slew on every fallback)
-    if math.isinf(p):
-        fwd, bwd = topp.sweep_per_axis(a, c, Uc, float(s_max), float(th), int(n_grid))
-    else:
-        fwd, bwd = topp.sweep_pnorm(a, c, Uc, float(p), float(s_max), float(th), int(n_grid))
+    fwd, bwd = topp.sweep(a, c, np.ascontiguousarray(U, float), float(p), float(s_max), float(th), int(n_grid))
     s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
     rate = np.sqrt(s_prof)
     # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)

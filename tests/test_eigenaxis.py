@@ -77,7 +77,7 @@ def test_baseline_time_without_gyroscopic_term_is_the_closed_form(J, axis, rate_
     prob = _prob(J, axis, 2.2, torque_max=[1.0, 0.7, 0.4], rate_max=rate_max)
     n, th, a, c, s_max = _phase_plane(prob)
     assert not np.any(c)
-    fwd, bwd = topp.sweep_per_axis(a, c, np.asarray(prob.torque_max, float), float(s_max), float(th), 200000)
+    fwd, bwd = topp.sweep(a, c, np.asarray(prob.torque_max, float), math.inf, float(s_max), float(th), 200000)
     fine = topp.profile_time(fwd, bwd, float(th), 200000)
     T = eigenaxis_time(prob, n_grid=1000)
     assert T == pytest.approx(fine, rel=1e-8) and T <= fine * (1 + 1e-14)

@@ -5,12 +5,38 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq, minimize_scalar
 
 import solvers
 from slew_env import SlewProblem
+from solvers.core.eigenaxis_topp import accel_interval
 from test_solution_control import _fly
 
 R5_QF = [0.25881904510252074, 0.9659258262890683, 0.0, 0.0]
+
+
+def _accel_interval(a, c, U, p, s):
+    """Interval of feasible θ̈ at phase-plane speed ``s``; ``None`` when empty: scipy's bounded
+    minimiser and brentq, the reference of the compiled ``accel_interval_pnorm``."""
+    # the per-axis interval; for a p-norm it brackets the feasible set
+    lo, hi, ok = accel_interval(a, c, U, float(s))
+    if not ok:
+        return None
+    if math.isinf(p):
+        return lo, hi
+
+    def g(x):
+        v = np.abs((a * x + c * s) / U)
+        m = float(np.max(v))
+        return m * float(np.sum((v / m) ** p)) ** (1.0 / p) if m > 0 else 0.0
+    # {x : g(x) ≤ 1} is an interval inside [lo, hi] (g convex): minimiser, then both edges
+    res = minimize_scalar(g, bounds=(lo, hi), method="bounded", options={"xatol": 1e-13 * max(1.0, hi - lo)})
+    xm = float(res.x)
+    if g(xm) > 1.0:
+        return None
+    left = lo if g(lo) <= 1.0 else brentq(lambda x: g(x) - 1.0, lo, xm, xtol=1e-15, rtol=1e-14)
+    right = hi if g(hi) <= 1.0 else brentq(lambda x: g(x) - 1.0, xm, hi, xtol=1e-15, rtol=1e-14)
+    return left, right
 
 
 def test_eigenaxis_method_gives_the_analytic_slew_and_flies_it():
@@ -88,7 +114,7 @@ def test_compiled_pnorm_sweep_matches_the_reference_interval():
         n, th, a, c, s_max = E._phase_plane(prob)
         U = np.asarray(prob.torque_max, float)
         for s in (0.0, 0.5 * min(s_max, 1.0)):
-            lo, hi = E._accel_interval(a, c, U, prob.torque_norm, s)
+            lo, hi = _accel_interval(a, c, U, prob.torque_norm, s)
             lo2, hi2, ok = topp.accel_interval_pnorm(a, c, U, prob.torque_norm, s)
             assert ok and abs(lo2 - lo) < 1e-9 * max(1.0, abs(lo)) and abs(hi2 - hi) < 1e-9 * max(1.0, abs(hi))
 

@@ -54,9 +54,10 @@ def _amin(a, c, U, p, s, s_max):
 
 
 @njit(cache=True)
-def _sweep(a, c, U, p, s_max, th, n_grid):
-    """Forward (max acceleration) and backward (max deceleration) profiles of ``s`` on
-    ``n_grid`` equal steps of ``θ`` in ``[0, th]``; the profile is ``min(fwd, bwd)``."""
+def sweep(a, c, U, p, s_max, th, n_grid):
+    """The phase-plane sweeps under the bound ``p`` (``inf``: per axis): forward (max
+    acceleration) and backward (max deceleration) profiles of ``s`` on ``n_grid`` equal steps of
+    ``θ`` in ``[0, th]``; the profile is ``min(fwd, bwd)``."""
     dth = th / n_grid
     fwd = np.zeros(n_grid + 1)
     bwd = np.zeros(n_grid + 1)
@@ -84,12 +85,6 @@ def _sweep(a, c, U, p, s_max, th, n_grid):
             dec = nxt
         bwd[k - 1] = min(s - 2.0 * dth * min(dec, 0.0), s_max)
     return fwd, bwd
-
-
-@njit(cache=True)
-def sweep_per_axis(a, c, U, s_max, th, n_grid):
-    """The phase-plane sweeps (``_sweep``) for the per-axis bound."""
-    return _sweep(a, c, U, math.inf, s_max, th, n_grid)
 
 
 @njit(cache=True)
@@ -235,9 +230,3 @@ def accel_interval_pnorm(a, c, U, p, s):
     ``{x : ‖(a x + c s) / U‖_p ≤ 1}`` is an interval (a convex function's sublevel set) inside
     the per-axis one: a point inside it (``_inside_point``), then each edge (``_edge``)."""
     return _pnorm_ends(a, c, U, p, s, True, True)
-
-
-@njit(cache=True)
-def sweep_pnorm(a, c, U, p, s_max, th, n_grid):
-    """The phase-plane sweeps (``_sweep``) for the p-norm bound (``accel_interval_pnorm``)."""
-    return _sweep(a, c, U, p, s_max, th, n_grid)
