@@ -34,10 +34,11 @@ from .attitude_bvp import AttitudeBVP, NY, Trajectory, quat_left_matrix
 from .clearance import CLEARANCE_TOL, certified_replay, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
+from .core.touch_sequence import touch_sequence_flow
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
 from .indirect import solution_fields
 from .guesses import Guess
-from .switch_time import Structure, advance, structure_from_trajectory, switch_event
+from .switch_time import Structure, structure_from_trajectory
 from .verify import DEFAULT_TOLS, extremal_checks, failure_text, make_check, rate_limit_check
 
 NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a contact
@@ -108,6 +109,9 @@ class TouchProblem:
         self.M = [cone_matrix(bvp.problem.cones[c].axis, s) for c in cone_ids]
         self.cos_a = [math.cos(bvp.problem.cones[c].half_angle) for c in cone_ids]
         self.cone_ids = list(cone_ids)
+        # the same, stacked for the compiled flow (``core.touch_sequence``)
+        self.Ms = np.array(self.M, dtype=float).reshape(self.K, 4, 4)
+        self.cos_a_array = np.array(self.cos_a, dtype=float)
 
     def unpack(self, x):
         K = self.K
@@ -177,49 +181,35 @@ def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
     Square and smooth: the arcs have fixed controls, the switch instants are unknowns (as
     in ``switch_time``), and each touch applies the jump ``λq⁺ = λq⁻ - 2νMq``. The
     sensitivity ``G = dy(t)/dx`` at the running time ``t`` picks up ``f⁻ - f⁺`` in the
-    column of each event's instant (the state after it, moved later)."""
+    column of each event's instant (the state after it, moved later). The arcs and events
+    run in one compiled call (``core.touch_sequence.touch_sequence_flow``)."""
     bvp, K, n = tp.bvp, tp.K, st.n
     nx = 6 + n + 1 + 2 * K
-    c_T, c_tc, c_nu = 6 + n, 7 + n, 7 + n + K
     y, dy0 = bvp.initial(z)
     G = np.zeros((NY, nx))
     G[:, :6] = dy0
-    signs = st.signs0.astype(float).copy()
     nr = 1 + n + 2 * K + 6
     r = np.empty(nr)
     Jm = np.zeros((nr, nx)) if want_jac else None
+    S_jac = Jm[1:1 + n] if want_jac else np.zeros((n, nx))
+    H_jac = Jm[1 + n:1 + n + 2 * K] if want_jac else np.zeros((2 * K, nx))
     rp, drp = bvp.param_residual(z)
     r[0] = rp[0]
     if want_jac:
         Jm[0, :6] = drp[0]
-    t_prev = 0.0
-    for t_next, kind, j in _events(times, tc) + [(T, 2, -1)]:
-        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
-        if y is None:
-            return None, None
-        t_prev = max(t_prev, t_next)
-        if kind == 2:
-            break
-        if kind == 0:
-            r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
-            continue
-        rr, g = _touch_residual(y, tp.M[j], tp.cos_a[j])
-        r[1 + n + 2 * j:3 + n + 2 * j] = rr
-        if want_jac:
-            f = af.ext_rhs(y, bvp.umax * signs, bvp.J)
-            Jm[1 + n + 2 * j:3 + n + 2 * j] = g @ G
-            Jm[1 + n + 2 * j:3 + n + 2 * j, c_tc + j] += g @ f
-        y, G_plus, Jmap = touch_jump(tp.M[j], nu[j], y, G if want_jac else None, c_nu + j)
-        if want_jac:
-            G = G_plus
-            G[:, c_tc + j] += Jmap @ f - af.ext_rhs(y, bvp.umax * signs, bvp.J)
+    y, ok = touch_sequence_flow(y, G, np.ascontiguousarray(times, dtype=float),
+                                np.ascontiguousarray(st.axes, dtype=np.int64), float(T),
+                                np.ascontiguousarray(tc, dtype=float), np.ascontiguousarray(nu, dtype=float),
+                                tp.Ms, tp.cos_a_array, np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax,
+                                bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen, bool(want_jac),
+                                r[1:1 + n], S_jac, r[1 + n:1 + n + 2 * K], H_jac)
+    if not ok:
+        return None, None
     rt, dry, drT = bvp.terminal(y, T)
     r[1 + n + 2 * K:] = rt
     if want_jac:
-        f = af.ext_rhs(y, bvp.umax * signs, bvp.J)
-        G[:, c_T] += f
         Jm[1 + n + 2 * K:] = dry @ G
-        Jm[1 + n + 2 * K:, c_T] += drT
+        Jm[1 + n + 2 * K:, 6 + n] += drT
     if not np.all(np.isfinite(r)):
         return None, None
     return r, Jm
@@ -309,7 +299,9 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         while alpha > 1e-6:
             xt = x + alpha * dx
             if inside(xt):
-                rt, Jt = _structured_residual(tp, *split(xt), st, True)
+                # the full step carries the Jacobian (it is usually taken); shorter trials are
+                # mostly rejected, so they fly the state alone and the Jacobian follows if taken
+                rt, Jt = _structured_residual(tp, *split(xt), st, alpha == 1.0)
                 nfev += 1
                 if rt is not None and float(rt @ rt) < (1.0 - 1e-4 * alpha) * phi:
                     accepted = True
@@ -317,6 +309,11 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
             alpha *= 0.5
         if not accepted:
             return pack(x)[0], False, it, nfev, rn, pack(x)[1]
+        if Jt is None:
+            rt, Jt = _structured_residual(tp, *split(xt), st, True)
+            nfev += 1
+            if rt is None:
+                return pack(x)[0], False, it, nfev, rn, pack(x)[1]
         x, r, Jm = xt, rt, Jt
         phi = float(r @ r)
     rn = float(np.max(np.abs(r)))

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attitude_bvp import NY
-from .core.attitude_flow import ext_rhs
 from .core.switch_sequence import sequence_end, sequence_flow
 
 
@@ -92,35 +91,6 @@ def _residual(bvp, z, times, T, st, want_jac):
     if not np.all(np.isfinite(r)):
         return None, None
     return r, Jm
-
-
-_EYE = np.eye(NY)
-
-
-def advance(bvp, y, G, dt, signs, want_jac):
-    """One arc of fixed ``signs`` over ``dt`` (nothing if ``dt ≤ 0``): ``(y, G)`` at its end,
-    ``G = dy/dx`` carried through the arc's transition matrix, or ``(None, None)``."""
-    if dt <= 0.0:
-        return y, G
-    y1, Phi, ok = bvp.arc(y, dt, signs, _EYE if want_jac else None)
-    if not ok:
-        return None, None
-    return y1, (Phi @ G if want_jac else G)
-
-
-def switch_event(bvp, y, G, signs, a, col, jac_row=None):
-    """A switch of axis ``a`` at the running state ``y``, its instant the unknown ``col``:
-    returns the residual ``S_a = λω_a / J_a`` and flips ``signs[a]``. With ``jac_row`` (the
-    residual's Jacobian row, filled in place), ``G = dy/dx`` is updated too."""
-    res = y[11 + a] / bvp.J[a]
-    if jac_row is not None:
-        f = ext_rhs(y, bvp.umax * signs, bvp.J)
-        jac_row[:] = G[11 + a] / bvp.J[a]
-        jac_row[col] += f[11 + a] / bvp.J[a]
-        # moving the switch later keeps the old torque on axis a for longer
-        G[4 + a, col] += 2.0 * signs[a] * bvp.umax[a] / bvp.J[a]
-    signs[a] = -signs[a]
-    return res
 
 
 def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,

@@ -1,12 +1,10 @@
 """Exact extremals that touch a keep-out cone at an isolated instant (solvers.cone_touch):
 the junction's Jacobian, and a touch problem solved exactly and replayed from its switch times."""
-import json
 import math
 
 import numpy as np
 import pytest
 
-from slew_env import SlewProblem
 from slew_env.core.quaternion import qrotate
 from solvers import solve
 from solvers.clearance import certified_min_margin, margins
@@ -16,13 +14,7 @@ from solvers.switch_time import Structure
 from solvers.core.cone_penalty import cone_matrix
 from solvers.verify import replay_path
 
-# pointing-cones family, seed [0, 3]: three cones, the optimal path touches the first once
-TOUCH = SlewProblem.from_dict(json.loads("""{"inertia": [0.9369836444739033, 0.9162486620649626, 0.592824893402508],
- "q0": [-0.212179620021578, 0.7874395993965867, -0.2511260017789171, -0.5213966027700767],
- "sensor_target": [0.27136277312428053, -0.1059744793465666, 0.9566251382278873],
- "cones": [{"axis": [0.7353572616426709, -0.4117251266523518, -0.5382677009003024], "half_angle": 0.3879313425796854},
-           {"axis": [0.8629894045386329, -0.4510996520342433, -0.22750470673953233], "half_angle": 0.2827254380309789},
-           {"axis": [-0.26472544369114387, -0.021596704770949784, 0.9640819580334254], "half_angle": 0.41200134858165927}]}"""))
+from reference_cases import TOUCH
 
 
 def test_touch_problem_jacobian_matches_finite_differences():

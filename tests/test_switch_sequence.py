@@ -9,42 +9,9 @@ from slew_env.core import qfrom_uniform
 from solvers import Guess, solve
 from solvers.attitude_bvp import NY, AttitudeBVP
 from solvers.core.attitude_flow import ext_rhs
-from solvers.switch_time import Structure, _residual, advance, solve_switch_times, switch_event
+from solvers.switch_time import Structure, _residual, solve_switch_times
 
-
-def _python_residual(bvp, z, times, T, st, want_jac):
-    """The loop as it ran before it was compiled (kept here as the reference)."""
-    n = st.n
-    nx = 6 + n + 1
-    y, dy0 = bvp.initial(z)
-    G = np.zeros((NY, nx))
-    G[:, :6] = dy0
-    signs = st.signs0.astype(float).copy()
-    r = np.empty(1 + n + 6)
-    Jm = np.zeros((1 + n + 6, nx)) if want_jac else None
-    rp, drp = bvp.param_residual(z)
-    r[0] = rp[0]
-    if want_jac:
-        Jm[0, :6] = drp[0]
-    order = np.argsort(times, kind="stable")
-    t_prev = 0.0
-    for j in list(order) + [-1]:
-        t_next = T if j < 0 else float(times[j])
-        y, G = advance(bvp, y, G, t_next - t_prev, signs, want_jac)
-        if y is None:
-            return None, None
-        t_prev = max(t_prev, t_next)
-        if j < 0:
-            break
-        r[1 + j] = switch_event(bvp, y, G, signs, int(st.axes[j]), 6 + j, Jm[1 + j] if want_jac else None)
-    rt, dry, drT = bvp.terminal(y, T)
-    r[1 + n:] = rt
-    if want_jac:
-        f = ext_rhs(y, bvp.umax * signs, bvp.J)
-        G[:, -1] += f
-        Jm[1 + n:] = dry @ G
-        Jm[1 + n:, -1] += drT
-    return r, Jm
+from python_sequence_flows import switch_residual as _python_residual
 
 
 def _cases(n_cases=12, seed=3):

@@ -76,6 +76,46 @@ def _finite_times(times, T):
 
 
 @njit(cache=True)
+def advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
+    """One arc of fixed ``signs`` over ``dt`` from ``y``, carrying the sensitivity columns
+    ``active[:n_active]`` of ``G`` (updated in place; the others are zero and stay so), or none
+    without ``want_jac``: ``(y(dt), ok)``, ``(y, False)`` if the arc fails."""
+    m = n_active if want_jac else 0
+    Y0 = np.empty(NY + NY * m)
+    Y0[:NY] = y
+    for i in range(NY):
+        for c in range(m):
+            Y0[NY + i * m + c] = G[i, active[c]]
+    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+    if not ok:
+        return y, False
+    for i in range(NY):
+        for c in range(m):
+            G[i, active[c]] = Y[NY + i * m + c]
+    return Y[:NY].copy(), True
+
+
+@njit(cache=True)
+def switch_event(y, G, signs, a, j, J, umax, want_jac, S_res, S_jac, active, n_active):
+    """Switch ``j`` of axis ``a`` at the running state ``y``, its instant the unknown in column
+    ``6 + j``: ``S_res[j]`` the switching function ``λω_a / J_a`` just before it, with its
+    gradient in ``S_jac[j]`` and the jump ``f⁻ - f⁺`` in ``G``'s column, which becomes active;
+    flips ``signs[a]``. Returns the new number of active columns."""
+    S_res[j] = y[11 + a] / J[a]
+    if want_jac:
+        f = ext_rhs(y, umax * signs, J)
+        for c in range(G.shape[1]):
+            S_jac[j, c] = G[11 + a, c] / J[a]
+        S_jac[j, 6 + j] += f[11 + a] / J[a]
+        # moving the switch later keeps the old torque on axis a for longer
+        G[4 + a, 6 + j] += 2.0 * signs[a] * umax[a] / J[a]
+        active[n_active] = 6 + j
+        n_active += 1
+    signs[a] = -signs[a]
+    return n_active
+
+
+@njit(cache=True)
 def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
                   S_res, S_jac):
     """Arcs of ``y0`` (NY,) over ``[0, T]`` with switches of axes ``axes`` at ``times``.
@@ -102,36 +142,16 @@ def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, at
         t_next = T if k == n else times[order[k]]
         dt = t_next - t_prev
         if dt > 0.0:
-            m = n_active if want_jac else 0
-            Y0 = np.empty(NY + NY * m)
-            Y0[:NY] = y
-            for i in range(NY):
-                for c in range(m):
-                    Y0[NY + i * m + c] = G[i, active[c]]
-            Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            y, ok = advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen,
+                                    want_jac)
             if not ok:
                 return y, False
-            y = Y[:NY].copy()
-            for i in range(NY):
-                for c in range(m):
-                    G[i, active[c]] = Y[NY + i * m + c]
         if t_next > t_prev:
             t_prev = t_next
         if k == n:
             break
         j = order[k]
-        a = axes[j]
-        S_res[j] = y[11 + a] / J[a]
-        if want_jac:
-            f = ext_rhs(y, umax * signs, J)
-            for c in range(nx):
-                S_jac[j, c] = G[11 + a, c] / J[a]
-            S_jac[j, 6 + j] += f[11 + a] / J[a]
-            # moving the switch later keeps the old torque on axis a for longer
-            G[4 + a, 6 + j] += 2.0 * signs[a] * umax[a] / J[a]
-            active[n_active] = 6 + j
-            n_active += 1
-        signs[a] = -signs[a]
+        n_active = switch_event(y, G, signs, axes[j], j, J, umax, want_jac, S_res, S_jac, active, n_active)
     if want_jac:
         f = ext_rhs(y, umax * signs, J)
         for i in range(NY):
