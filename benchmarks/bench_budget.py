@@ -7,7 +7,10 @@ iterations, continuation steps, candidates and IPOPT iterations, so a small over
 step) is expected; a solve that ignores its budget shows here as an overshoot of seconds.
 
     python benchmarks/bench_budget.py [--n 10] [--seed 5] [--budgets 0.05,0.2,1.0]
-                                      [--families full-attitude,pnorm,pointing-cones]
+                                      [--families full-attitude,pnorm,pointing-cones] [--fallback]
+
+``--fallback``: ``fallback="eigenaxis"`` (the eigenaxis slew where the route gives no verified
+answer; not with collocation or cones), and the count of fallback answers in the last column.
 
 Families: ``full-attitude`` (per-axis bound, symmetric and asymmetric inertia), ``pnorm``
 (the same slews under the 2-norm bound), ``pointing-cones`` (pointing-only targets, 1-3 keep-out
@@ -44,6 +47,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--budgets", default="0.05,0.2,1.0")
     ap.add_argument("--families", default="full-attitude,pnorm,pointing-cones")
+    ap.add_argument("--fallback", action="store_true", help="fallback='eigenaxis' where it applies")
     args = ap.parse_args(argv)
     budgets = [float(b) for b in args.budgets.split(",")]
     print(f"{'family':15s} {'method':12s} {'warm':8s} {'budget':>7s} {'verified':>9s} "
@@ -53,21 +57,26 @@ def main(argv=None):
         for method, ws in CONFIGS:
             if method == "indirect" and family == "pointing-cones":
                 continue     # the indirect route with cones is collocation first (as auto)
+            if args.fallback and (method == "collocation" or family == "pointing-cones"):
+                continue     # the fallback applies to neither
+            extra = {"fallback": "eigenaxis"} if args.fallback else {}
             # build kernels and NLP templates (one of each number of cones) before timing
             for k in sorted({len(p.cones) for p in probs}):
                 solvers.solve(next(p for p in probs if len(p.cones) == k), method=method, warm_start=ws)
             for b in budgets:
-                over, ok, statuses = [], 0, {}
+                over, ok, statuses, n_fallback = [], 0, {}, 0
                 for p in probs:
                     t0 = time.perf_counter()
-                    s = solvers.solve(p, method=method, warm_start=ws, time_budget=b)
+                    s = solvers.solve(p, method=method, warm_start=ws, time_budget=b, **extra)
                     over.append(time.perf_counter() - t0 - b)
                     ok += bool(s.success)
                     statuses[s.status] = statuses.get(s.status, 0) + 1
+                    n_fallback += s.method == "eigenaxis"
                 over = 1e3 * np.array(over)
                 print(f"{family:15s} {method:12s} {str(ws):8s} {b:7.2f} {ok:4d}/{len(probs):<4d} "
                       f"{np.median(over):21.0f} {np.percentile(over, 95):7.0f} {over.max():7.0f}  "
-                      f"{dict(sorted(statuses.items()))}", flush=True)
+                      f"{dict(sorted(statuses.items()))}"
+                      + (f"  fallback answers {n_fallback}" if args.fallback else ""), flush=True)
 
 
 if __name__ == "__main__":

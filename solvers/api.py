@@ -69,6 +69,11 @@ METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "candidate_cap", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check", "fallback"}
 FALLBACKS = (None, "eigenaxis")
+# s: kept out of the route's time budget for planning the eigenaxis fallback (``_fallback_reserve``),
+# at most this share of the budget
+FALLBACK_RESERVE = 0.025
+FALLBACK_RESERVE_PNORM = 0.06
+FALLBACK_RESERVE_SHARE = 0.5
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
 # converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
@@ -315,8 +320,12 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``fallback`` (default None): ``"eigenaxis"`` returns, where the route ends without a verified
     answer (the ``time_budget`` ran out, or nothing converged), the eigenaxis slew of a
     rest-to-rest full-attitude problem without cones (``method="eigenaxis"``, verified by its
-    replay, not time-optimal; planned after the budget, 12–24 ms for a per-axis bound): a flyable
-    answer for on-board use under a hard budget. The route's message says why it was needed.
+    replay, not time-optimal; 12–24 ms for a per-axis bound): a flyable answer for on-board use
+    under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
+    planning time (``FALLBACK_RESERVE``, 25 ms, or ``FALLBACK_RESERVE_PNORM``, 60 ms, for a p-norm
+    bound with a gyroscopic term; at most half the budget), so that either answer is there
+    within the budget, up to the route's own overshoot (one Newton step or IPOPT iteration).
+    The route's message says why the fallback was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
     predicted time, or a slew within 10° of a half turn; ``_challenge_learned_answer``) and keeps
@@ -359,6 +368,13 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     if fallback is not None and method in ("collocation", "eigenaxis"):
         raise ValueError(f"fallback: applies to the 'auto', 'indirect' and 'multiple-shooting' routes, "
                          f"not method={method!r}")
+    reserved = 0.0
+    if fallback == "eigenaxis" and "time_budget" in options and _fallback_inapplicable(prob) is None:
+        # the fallback is planned after the route: its time comes out of the route's budget, so
+        # that the answer, whichever it is, is there within the budget
+        budget = float(options["time_budget"])
+        reserved = min(_fallback_reserve(prob), FALLBACK_RESERVE_SHARE * budget)
+        options["time_budget"] = budget - reserved
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
@@ -450,18 +466,41 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
             sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     if fallback == "eigenaxis" and not sol.success:
-        sol = _eigenaxis_fallback(prob, sol, t0)
+        sol = _eigenaxis_fallback(prob, sol, t0, reserved)
     return sol
 
 
-def _eigenaxis_fallback(prob, sol, t0) -> SlewSolution:
+def _fallback_inapplicable(prob):
+    """Why the eigenaxis slew is not an answer to ``prob`` (it needs a rest-to-rest
+    full-attitude problem without cones), or ``None``: where the fallback does not apply, and
+    where ``auto`` does not compare its answer with it (``_no_slower_than_eigenaxis``)."""
+    if prob.cones:
+        return "keep-out cones"
+    if prob.qf is None:
+        return "a pointing target"
+    return None if prob.is_rest_to_rest else "non-zero rates"
+
+
+def _fallback_reserve(prob):
+    """Seconds of the time budget kept for planning the eigenaxis fallback (``eigenaxis_answer``,
+    measured 12-24 ms for a per-axis bound or a body without a gyroscopic term, 15-57 ms for a
+    p-norm bound on an asymmetric body off its principal axes, with its finer grid)."""
+    if math.isinf(prob.torque_norm):
+        return FALLBACK_RESERVE
+    from .eigenaxis import _checked, _phase_plane
+    c = _phase_plane(_checked(prob))[3]
+    return FALLBACK_RESERVE_PNORM if np.any(c) else FALLBACK_RESERVE
+
+
+def _eigenaxis_fallback(prob, sol, t0, reserved=0.0) -> SlewSolution:
     """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
     ran out, or nothing converged), the eigenaxis slew of a rest-to-rest full-attitude problem
     without cones (``eigenaxis_answer``: what most spacecraft fly today, verified by its replay;
-    12–24 ms for a per-axis bound, after the budget). ``sol`` unchanged, its message saying why,
-    where the fallback does not apply or fails."""
-    if prob.cones or prob.qf is None or not prob.is_rest_to_rest:
-        why = "keep-out cones" if prob.cones else ("a pointing target" if prob.qf is None else "non-zero rates")
+    12–24 ms for a per-axis bound, planned in the ``reserved`` seconds that ``solve`` kept out of
+    the route's budget). ``sol`` unchanged, its message saying why, where the fallback does not
+    apply or fails."""
+    why = _fallback_inapplicable(prob)
+    if why is not None:
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {why}.)"
         return sol
     from .eigenaxis_answer import eigenaxis_answer
@@ -473,8 +512,9 @@ def _eigenaxis_fallback(prob, sol, t0) -> SlewSolution:
     if not eig.success:
         sol.message = f"{sol.message} (fallback 'eigenaxis' failed: {eig.message[:200]})"
         return sol
+    kept = f" (planned in the {1e3 * reserved:.0f} ms of the budget kept for it)" if reserved else ""
     eig.route = (f"{(sol.route or sol.method or 'the route')[:300]} → status {sol.status}, no verified "
-                 f"time-optimal answer → fallback: the eigenaxis slew")
+                 f"time-optimal answer → fallback: the eigenaxis slew{kept}")
     eig.message = (f"{eig.message} Returned as the fallback (fallback='eigenaxis'); the time-optimal route "
                    f"ended with status {sol.status}: {sol.message}")
     eig.nit, eig.nfev = eig.nit + sol.nit, eig.nfev + sol.nfev
@@ -892,7 +932,7 @@ def _no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
     eigenaxis slew: an approximate (collocation) answer that is not faster — small slews,
     where the two agree to first order and collocation cannot resolve the difference — is
     replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
-    if not sol.success or sol.exact or prob.cones or prob.qf is None or not prob.is_rest_to_rest:
+    if not sol.success or sol.exact or _fallback_inapplicable(prob) is not None:
         return sol
     # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
     # p-norm with a rate limit): compare with the eigenaxis answer itself, which is cheap for a

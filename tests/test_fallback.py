@@ -83,3 +83,34 @@ def test_cli_time_budget_and_fallback(tmp_path, capsys):
         code = main(["solve", str(R3), "--repeat", "0"] + argv)
         err = capsys.readouterr().err
         assert code == 2 and needle in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("budget, torque_norm, inertia, kept", [
+    (0.2, np.inf, [1.0, 1.0, 1.0], 0.025),     # per-axis: FALLBACK_RESERVE
+    (0.03, np.inf, [1.0, 1.0, 1.0], 0.015),    # at most half the budget
+    (0.2, 2.0, [1.0, 1.0, 1.0], 0.025),        # p-norm, no gyroscopic term: the coarse grid
+    (0.2, 2.0, [0.5, 0.8, 1.0], 0.06),         # p-norm off the principal axes: its finer grid
+])
+def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, budget, torque_norm, inertia,
+                                                                  kept):
+    from solvers import api
+    from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
+    seen = {}
+
+    def route(prob, method, guess, **options):
+        seen["time_budget"] = options["time_budget"]
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                            method="indirect", problem=prob, route="stub")
+
+    monkeypatch.setattr(api, "_solve_indirect", route)
+    prob = _r3().replace(inertia=inertia, torque_norm=torque_norm)
+    sol = solvers.solve(prob, method="indirect", warm_start=None, time_budget=budget, fallback="eigenaxis")
+    assert seen["time_budget"] == pytest.approx(budget - kept, rel=1e-12)
+    assert sol.success and sol.method == "eigenaxis"
+    assert f"planned in the {1e3 * kept:.0f} ms of the budget kept for it" in sol.route
+    # without the fallback, or where it does not apply, the route has the whole budget
+    solvers.solve(prob, method="indirect", warm_start=None, time_budget=budget)
+    assert seen["time_budget"] == budget
+    solvers.solve(prob.replace(omega0=[0.01, 0.0, 0.0]), method="indirect", warm_start=None, time_budget=budget,
+                  fallback="eigenaxis")
+    assert seen["time_budget"] == budget
