@@ -69,11 +69,13 @@ METHODS = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")
 _OPTIONS = {"collocation", "segments", "max_candidates", "min_candidates", "enough", "candidate_cap", "seed", "time_budget", "tols", "n_dense",
             "eps_min", "rtol", "atol", "warm_budget", "singular_table", "local_optimum_check", "fallback"}
 FALLBACKS = (None, "eigenaxis")
-# s: kept out of the route's time budget for planning the eigenaxis fallback (``_fallback_reserve``),
+# s: kept out of the route's time budget for planning the eigenaxis fallback (12-24 ms measured),
 # at most this share of the budget
 FALLBACK_RESERVE = 0.025
-FALLBACK_RESERVE_PNORM = 0.06
 FALLBACK_RESERVE_SHARE = 0.5
+# angle steps of the fallback's profile for a p-norm bound with a gyroscopic term (the planner's
+# default, 4,000, takes 20-100 ms; 1,000 steps 12-18 ms, at most 5e-5 slower)
+FALLBACK_GRID_PNORM_GYRO = 1000
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
 # converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
@@ -322,9 +324,10 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     rest-to-rest full-attitude problem without cones (``method="eigenaxis"``, verified by its
     replay, not time-optimal; 12–24 ms for a per-axis bound): a flyable answer for on-board use
     under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
-    planning time (``FALLBACK_RESERVE``, 25 ms, or ``FALLBACK_RESERVE_PNORM``, 60 ms, for a p-norm
-    bound with a gyroscopic term; at most half the budget), so that either answer is there
-    within the budget, up to the route's own overshoot (one Newton step or IPOPT iteration).
+    planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
+    is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
+    iteration). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
+    steps (``FALLBACK_GRID_PNORM_GYRO``; at most 5e-5 slower than ``method="eigenaxis"``'s 4,000).
     The route's message says why the fallback was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
@@ -373,7 +376,7 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         # the fallback is planned after the route: its time comes out of the route's budget, so
         # that the answer, whichever it is, is there within the budget
         budget = float(options["time_budget"])
-        reserved = min(_fallback_reserve(prob), FALLBACK_RESERVE_SHARE * budget)
+        reserved = min(FALLBACK_RESERVE, FALLBACK_RESERVE_SHARE * budget)
         options["time_budget"] = budget - reserved
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
@@ -434,11 +437,8 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
                 rest["time_budget"] = _left(rest["time_budget"], time.perf_counter() - t_table)
         if sol is None and info and float(options.get("time_budget", 20.0)) <= time.perf_counter() - t0:
             # the learned stage spent the budget: no route (building an NLP is not interruptible)
-            sol = SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
-                               f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} The learned guess's candidates (and "
-                               "the singular table's routes, where they ran) used the whole time budget.",
-                               spent_table[0], spent_table[1], time.perf_counter() - t0, method="indirect",
-                               problem=prob, route="no time left for the default route")
+            sol = _budget_spent(prob, "The learned guess's candidates (and the singular table's routes, where "
+                                "they ran)", *spent_table, t0, "no time left for the default route")
             if neighbours_bang is not None:
                 sol = _faster_verified(sol, neighbours_bang)
         if sol is None:
@@ -481,15 +481,11 @@ def _fallback_inapplicable(prob):
     return None if prob.is_rest_to_rest else "non-zero rates"
 
 
-def _fallback_reserve(prob):
-    """Seconds of the time budget kept for planning the eigenaxis fallback (``eigenaxis_answer``,
-    measured 12-24 ms for a per-axis bound or a body without a gyroscopic term, 15-57 ms for a
-    p-norm bound on an asymmetric body off its principal axes, with its finer grid)."""
-    if math.isinf(prob.torque_norm):
-        return FALLBACK_RESERVE
+def _pnorm_fallback_grid(prob):
+    """The fallback's grid for a p-norm bound: ``FALLBACK_GRID_PNORM_GYRO`` with a gyroscopic
+    term, else the planner's default (``None``; the profile is then bang-coast-bang)."""
     from .eigenaxis import _checked, _phase_plane
-    c = _phase_plane(_checked(prob))[3]
-    return FALLBACK_RESERVE_PNORM if np.any(c) else FALLBACK_RESERVE
+    return FALLBACK_GRID_PNORM_GYRO if np.any(_phase_plane(_checked(prob))[3]) else None
 
 
 def _eigenaxis_fallback(prob, sol, t0, reserved=0.0) -> SlewSolution:
@@ -505,7 +501,7 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0) -> SlewSolution:
         return sol
     from .eigenaxis_answer import eigenaxis_answer
     try:
-        eig = eigenaxis_answer(prob)
+        eig = eigenaxis_answer(prob, n_grid=None if math.isinf(prob.torque_norm) else _pnorm_fallback_grid(prob))
     except ValueError as e:          # a zero slew: nothing to fly
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {e}.)"
         return sol
@@ -1086,6 +1082,15 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     return last
 
 
+def _budget_spent(prob, what, nit, nfev, t0, route) -> SlewSolution:
+    """Status 3 where a stage of ``auto`` has used the whole time budget (``what``: the stage,
+    the subject of a sentence): the next stage is not started, as building an NLP is not
+    interruptible."""
+    return SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
+                        f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} {what} used the whole time budget.",
+                        nit, nfev, time.perf_counter() - t0, method="indirect", problem=prob, route=route)
+
+
 def _solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
     """``_solve_auto_route``, and before it, for a p-norm bound with p ≤ 2 and no ``guess``, the
     indirect multi-start (``_pnorm_indirect_first``): its verified answer is the answer; if it
@@ -1099,8 +1104,13 @@ def _solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
         ind.route = f"auto: indirect first (p-norm bound, p ≤ 2) → {ind.route}"
         ind.wall_time = time.perf_counter() - t0
         return ind
-    left = _left(budget, time.perf_counter() - t0)
-    sol = _solve_auto_route(prob, guess, col_opts, dict(options, time_budget=left), **kw)
+    if budget <= time.perf_counter() - t0:
+        # the indirect stage spent the budget: no route (building an NLP is not interruptible)
+        sol = _budget_spent(prob, "The indirect multi-start (p-norm bound, p ≤ 2)", 0, 0, t0,
+                            "no time left for the collocation route")
+    else:
+        left = _left(budget, time.perf_counter() - t0)
+        sol = _solve_auto_route(prob, guess, col_opts, dict(options, time_budget=left), **kw)
     sol.route = f"auto: indirect first (p-norm bound, p ≤ 2) failed ({ind.message[:120]}) → {sol.route}"
     sol.nit += ind.nit
     sol.nfev += ind.nfev
@@ -1145,6 +1155,10 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             tried_guess.route = f"auto: given guess → {tried_guess.route}"
             tried_guess.wall_time = spent()
             return tried_guess
+        if budget <= spent():
+            return _budget_spent(prob, "The given guess", tried_guess.nit, tried_guess.nfev, t0,
+                                 f"auto: given guess failed ({tried_guess.message[:120]}) → no time left for "
+                                 "collocation")
     from .collocation import solve_collocation
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
@@ -1533,7 +1547,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
         # switch-time Newton, no smoothing path
         path_cost = 0
         if per_axis and st is not None and src.startswith(("template", "learned", "nearest", "switch-time")):
-            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}")
+            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}", deadline=deadline)
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         elif per_axis:

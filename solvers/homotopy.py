@@ -41,8 +41,8 @@ def continue_path(bvp, z, T, start, stop, *, set_param, factor=3.0, min_factor=1
     path early (returns True to stop); it runs at the problem's own tolerance, while
     the path itself is integrated at ``path_rtol``. ``stall``: the Newton solves' stall
     criterion (``newton_shoot``): a step whose Newton stalls is retried shorter at once.
-    ``deadline`` (``time.perf_counter()`` value): checked before each step; past it the path
-    stops and fails (its points so far are returned). ``exhausted(nfev) -> str | None``: a
+    ``deadline`` (``time.perf_counter()`` value): checked before each step and each Newton
+    iteration; past it the path stops and fails (its points so far are returned). ``exhausted(nfev) -> str | None``: a
     further budget, checked before each step and after each Newton solve (before ``on_point``)
     with the path's propagations so far; a text stops the path, which fails with that text as
     its message.
@@ -79,7 +79,7 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
     nit = nfev = 0
     cur = start
     set_param(bvp, cur)
-    r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)
+    r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall, deadline=deadline)
     nit += r.nit
     nfev += r.nfev
     if not r.success:
@@ -105,7 +105,7 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
             return stop_
         nxt = max(cur / f, stop) if down else min(cur * f, stop)
         set_param(bvp, nxt)
-        r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall)
+        r = newton_shoot(bvp, z, T, max_step=0.5, tol=tol, max_iter=max_newton, stall=stall, deadline=deadline)
         nit += r.nit
         nfev += r.nfev
         if r.success and r.T > 0:

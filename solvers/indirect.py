@@ -71,14 +71,15 @@ def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=DENSE_STEPS):
 
 
 def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", max_rounds=3,
-                    tol=1e-12):
+                    tol=1e-12, deadline=math.inf):
     """Exact bang-bang solve for a structure, then correct the structure until the
-    event-driven propagation reproduces it."""
+    event-driven propagation reproduces it. ``deadline`` (``time.perf_counter()`` time):
+    checked before each Newton iteration."""
     bvp.set_mode("bang")
     st = structure
     last = None
     for _ in range(max_rounds):
-        sr = solve_switch_times(bvp, z, st, T, tol=tol)
+        sr = solve_switch_times(bvp, z, st, T, tol=tol, deadline=deadline)
         nit += sr.nit
         nfev += sr.nfev
         last = sr
@@ -124,7 +125,7 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         return None
 
     if structure is not None:
-        a = solve_structure(bvp, z, T, structure, route="switch-time (guess structure)")
+        a = solve_structure(bvp, z, T, structure, route="switch-time (guess structure)", deadline=deadline)
         if a.success and a.T <= T_accept:
             return a
         nit, nfev = a.nit, a.nfev
@@ -140,7 +141,8 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         for st in structure_candidates(bvp, pt.z, pt.T):
             if over_cap(path_nfev):
                 return True
-            a = solve_structure(bvp, pt.z, pt.T, st, route=f"tanh continuation to eps={pt.param:.3g} + switch-time")
+            a = solve_structure(bvp, pt.z, pt.T, st, route=f"tanh continuation to eps={pt.param:.3g} + switch-time",
+                                deadline=deadline)
             nit += a.nit
             nfev += a.nfev
             if a.success:
@@ -209,14 +211,15 @@ def singular_diagnosis(bvp, z, T, eps, threshold=0.05):
 
 def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9, deadline=math.inf):
     """One attempt at the p-norm extremal: direct shooting, else continuation from p = 2
-    (within ``deadline``, a ``time.perf_counter()`` value, checked between its steps).
+    (within ``deadline``, a ``time.perf_counter()`` value, checked between its steps and
+    Newton iterations).
 
     The tolerance is looser than the bang-bang one because the p-norm control jumps
     where λω passes through zero (the midpoint of an eigenaxis slew), which limits the
     integrator's accuracy to about 1e-10.
     """
     bvp.set_mode("pnorm", p=p)
-    r = newton_shoot(bvp, z, T, segments=segments, tol=tol, max_step=0.5)
+    r = newton_shoot(bvp, z, T, segments=segments, tol=tol, max_step=0.5, deadline=deadline)
     if r.success:
         return Attempt(True, r.p, r.T, None, r.nit, r.nfev,
                        "multiple shooting" if segments > 1 else "single shooting", "converged",
@@ -231,7 +234,7 @@ def pnorm_from_guess(bvp, z, T, p, *, segments=1, tol=1e-9, deadline=math.inf):
         if path.success:
             last = path.points[-1]
             bvp.set_mode("pnorm", p=p)
-            r = newton_shoot(bvp, last.z, last.T, segments=segments, tol=tol, max_step=0.5)
+            r = newton_shoot(bvp, last.z, last.T, segments=segments, tol=tol, max_step=0.5, deadline=deadline)
             nit += r.nit
             nfev += r.nfev
             if r.success:

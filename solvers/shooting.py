@@ -27,6 +27,7 @@ The engine records iterations and function evaluations in a ``ShootingResult``.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Optional, Protocol
 
@@ -72,6 +73,7 @@ STATUS_FLOW_FAILED = 3
 STATUS_NONFINITE = 4
 STATUS_BAD_DURATION = 5
 STATUS_STALLED = 6
+STATUS_DEADLINE = 7
 
 MESSAGES = {
     STATUS_CONVERGED: "Newton converged: residual below tolerance.",
@@ -81,6 +83,7 @@ MESSAGES = {
     STATUS_NONFINITE: "Non-finite residual or Jacobian.",
     STATUS_BAD_DURATION: "The duration became non-positive.",
     STATUS_STALLED: "Stalled: the residual stopped decreasing (the stall criterion given).",
+    STATUS_DEADLINE: "The time budget ran out (the deadline given).",
 }
 
 
@@ -175,7 +178,8 @@ def initial_nodes(problem, p, T, M):
 
 
 def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_iter=40,
-                 max_step=None, min_alpha=1e-6, scale=None, linear_solver="lstsq", stall=None) -> ShootingResult:
+                 max_step=None, min_alpha=1e-6, scale=None, linear_solver="lstsq", stall=None,
+                 deadline=math.inf) -> ShootingResult:
     """Solve the BVP by damped Newton from ``(p0, T0)``.
 
     ``linear_solver``: ``"lstsq"`` (minimum-norm least squares, SVD: right for the
@@ -192,6 +196,9 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
     value ``k`` iterations before: a damped Newton that has stopped making progress on a
     rank-deficient problem is usually held by a non-zero local minimum of the residual, and a
     continuation step would rather retry with a shorter step than spend its iteration limit.
+
+    ``deadline`` (``time.perf_counter()`` time): checked before each iteration; past it the
+    iteration stops (``STATUS_DEADLINE``).
     """
     if linear_solver not in ("lstsq", "lu"):
         raise ValueError(f"linear_solver: expected 'lstsq' or 'lu', got {linear_solver!r}")
@@ -238,6 +245,9 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
             break
         if not np.all(np.isfinite(Jm)):
             status = STATUS_NONFINITE
+            break
+        if time.perf_counter() > deadline:
+            status = STATUS_DEADLINE
             break
         nit += 1
         # Minimum-norm least-squares step: the Jacobian of a bang-bang problem is

@@ -16,6 +16,8 @@ appear at the same instants and no others.
 """
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,19 +96,19 @@ def _residual(bvp, z, times, T, st, want_jac):
 
 
 def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,
-                       max_step=0.3, coarse_rtol=1e-9):
+                       max_step=0.3, coarse_rtol=1e-9, deadline=math.inf):
     """Newton on (costates, switch times, final time) for a fixed bang-bang structure.
 
     Iterates first at the integrator tolerance ``coarse_rtol`` to a residual of about
     ``1e3 · coarse_rtol`` (most iterations, cheap), then at the problem's own tolerance
-    to ``tol``.
+    to ``tol``. ``deadline`` (``time.perf_counter()`` time): checked before each iteration.
     """
     if coarse_rtol is not None and coarse_rtol > bvp.rtol:
         fine = (bvp.rtol, bvp.atol)
         bvp.rtol, bvp.atol = coarse_rtol, coarse_rtol
         try:
             first = _solve_switch_times(bvp, z0, structure, T0, tol=1e3 * coarse_rtol, max_iter=max_iter,
-                                        max_step=max_step)
+                                        max_step=max_step, deadline=deadline)
         finally:
             bvp.rtol, bvp.atol = fine
         if not first.success:
@@ -117,14 +119,15 @@ def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter
         again = _chord(bvp, first, tol) if first.jacobian is not None else None
         if again is None or not again.success:
             again = _solve_switch_times(bvp, first.z, first.structure, first.T, tol=tol, max_iter=max_iter,
-                                        max_step=max_step)
+                                        max_step=max_step, deadline=deadline)
         again.nit += first.nit
         again.nfev += first.nfev
         return again
-    return _solve_switch_times(bvp, z0, structure, T0, tol=tol, max_iter=max_iter, max_step=max_step)
+    return _solve_switch_times(bvp, z0, structure, T0, tol=tol, max_iter=max_iter, max_step=max_step,
+                               deadline=deadline)
 
 
-def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max_step):
+def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max_step, deadline=math.inf):
     st = structure
     n = st.n
     x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)]])
@@ -150,6 +153,9 @@ def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max
             ok, msg = True, "converged"
             break
         if nit >= max_iter:
+            break
+        if time.perf_counter() > deadline:
+            msg = "the time budget ran out"
             break
         nit += 1
         dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]

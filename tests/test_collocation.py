@@ -322,7 +322,7 @@ def test_r3_costates_converge_with_n(r3_indirect):
 
 
 def test_best_of_several_meshes_keeps_the_fastest_verified_answer():
-    from test_cone_touch import TOUCH
+    from reference_cases import TOUCH
     a = solve_collocation(TOUCH, n_intervals=40)
     b = solve_collocation(TOUCH, n_intervals=50)
     both = solve_collocation(TOUCH, n_intervals=[40, 50])

@@ -16,7 +16,8 @@ from solvers.warmstart.cone_features import (N_CONE_FEATURES, cone_canonical_for
                                              costate_to_canonical)
 from solvers.warmstart.cone_model import ConeWarmStartModel, cone_output_size
 
-from test_cone_touch import TOUCH, rough_answer_guess
+from reference_cases import TOUCH
+from test_cone_touch import rough_answer_guess
 
 DATA = os.path.join(os.path.dirname(__file__), "data", "pointing-cones-small.jsonl")
 

@@ -24,14 +24,14 @@ def _bvp(p_norm=math.inf, seed=3):
     return bvp, z, T
 
 
-def test_path_past_its_deadline_stops_after_the_start():
+def test_path_past_its_deadline_stops_at_once():
     bvp, z, T = _bvp()
     full = continue_path(bvp, z, T, 0.3, 1e-3, set_param=set_tanh)
-    assert full.success and len(full.points) > 2
+    assert full.success and len(full.points) > 2 and full.nit > 0
+    # the deadline is checked in the Newton iterations too: not even the path's start is solved
     cut = continue_path(bvp, z, T, 0.3, 1e-3, set_param=set_tanh, deadline=time.perf_counter() - 1.0)
-    assert not cut.success and "time budget exhausted" in cut.message
-    assert len(cut.points) == 1 and cut.points[0].param == 0.3
-    assert np.array_equal(cut.points[0].z, full.points[0].z)
+    assert not cut.success and "time budget ran out" in cut.message
+    assert cut.points == [] and cut.nit == 0 and cut.nfev == 1
 
 
 def test_norm_continuation_keeps_the_deadline():
@@ -73,3 +73,18 @@ def test_bad_stall_criterion_is_a_clear_error(bad):
     bvp, z, T = _bvp()
     with pytest.raises(ValueError, match="stall"):
         shooting.newton_shoot(bvp, z, T, stall=bad)
+
+
+def test_newton_and_switch_time_solves_stop_at_their_deadline():
+    from solvers.indirect import solve_structure
+    from solvers.switch_time import Structure
+    bvp, z, T = _bvp()
+    bvp.set_mode("tanh", eps=0.3)
+    late = shooting.newton_shoot(bvp, z, T, max_step=0.5, deadline=time.perf_counter() - 1.0)
+    assert not late.success and late.status == shooting.STATUS_DEADLINE and late.nit == 0
+    assert "time budget" in late.message
+    assert shooting.newton_shoot(bvp, z, T, max_step=0.5).nit > 0
+    st = Structure(np.ones(3), np.arange(3), np.full(3, 0.5 * T))
+    cut = solve_structure(bvp, z, T, st, deadline=time.perf_counter() - 1.0)
+    assert not cut.success and "time budget ran out" in cut.message and cut.nit == 0
+    assert solve_structure(bvp, z, T, st).nit > 0

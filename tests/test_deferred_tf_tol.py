@@ -10,7 +10,7 @@ from slew_env import SlewProblem
 from solvers import solve
 from solvers.api import _rel_tol
 from solvers.collocation import settle_tf_tol, solve_collocation
-from test_cone_touch import TOUCH
+from reference_cases import TOUCH
 
 # pointing-cones family, seed [0, 16]: two inactive cones, a singular arc in collocation's
 # control, so ``auto`` returns the collocation answer

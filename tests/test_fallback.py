@@ -85,14 +85,14 @@ def test_cli_time_budget_and_fallback(tmp_path, capsys):
         assert code == 2 and needle in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize("budget, torque_norm, inertia, kept", [
-    (0.2, np.inf, [1.0, 1.0, 1.0], 0.025),     # per-axis: FALLBACK_RESERVE
-    (0.03, np.inf, [1.0, 1.0, 1.0], 0.015),    # at most half the budget
-    (0.2, 2.0, [1.0, 1.0, 1.0], 0.025),        # p-norm, no gyroscopic term: the coarse grid
-    (0.2, 2.0, [0.5, 0.8, 1.0], 0.06),         # p-norm off the principal axes: its finer grid
+@pytest.mark.parametrize("budget, torque_norm, inertia, kept, n_grid", [
+    (0.2, np.inf, [1.0, 1.0, 1.0], 0.025, 16000),    # FALLBACK_RESERVE; the planner's grid
+    (0.03, np.inf, [1.0, 1.0, 1.0], 0.015, 16000),   # at most half the budget
+    (0.2, 2.0, [1.0, 1.0, 1.0], 0.025, 16000),       # p-norm, no gyroscopic term: bang-coast-bang
+    (0.2, 2.0, [0.5, 0.8, 1.0], 0.025, 1000),        # p-norm off the principal axes: a coarser grid
 ])
 def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, budget, torque_norm, inertia,
-                                                                  kept):
+                                                                  kept, n_grid):
     from solvers import api
     from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
     seen = {}
@@ -108,6 +108,9 @@ def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, 
     assert seen["time_budget"] == pytest.approx(budget - kept, rel=1e-12)
     assert sol.success and sol.method == "eigenaxis"
     assert f"planned in the {1e3 * kept:.0f} ms of the budget kept for it" in sol.route
+    assert f"profile, {n_grid} steps)" in sol.message
+    if n_grid < 16000:      # the coarser profile: flyable, and close to the planner's own
+        assert sol.tf == pytest.approx(eigenaxis_answer(prob).tf, rel=1e-4)
     # without the fallback, or where it does not apply, the route has the whole budget
     solvers.solve(prob, method="indirect", warm_start=None, time_budget=budget)
     assert seen["time_budget"] == budget

@@ -12,7 +12,7 @@ from slew_env import SlewProblem
 from solvers import api
 from solvers.collocation import solve_collocation
 from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_SUCCESS
-from test_cone_touch import TOUCH
+from reference_cases import TOUCH
 
 FULL = SlewProblem([1.0, 0.8, 0.6], q0=[1.0, 0.0, 0.0, 0.0], qf=[math.cos(0.6), math.sin(0.6), 0.0, 0.0])
 
@@ -120,3 +120,26 @@ def test_auto_runs_no_route_after_the_learned_stage_spent_the_budget(monkeypatch
     sol = solvers.solve(FULL, time_budget=0.02)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "no time left for the default route" in sol.route
+
+
+def test_auto_starts_no_collocation_once_the_indirect_stage_spent_the_budget(monkeypatch):
+    """p-norm (p ≤ 2) auto: the indirect multi-start first; if it fails having used the budget,
+    collocation (whose NLP build is not interruptible: 0.3-0.5 s the first time) is not started."""
+    from solvers import api
+    from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
+    prob = SlewProblem([0.5, 0.8, 1.0], torque_norm=2.0, q0=[1, 0, 0, 0], qf=[0.0, 1.0, 0.0, 0.0])
+
+    def slow_failure(p, method, guess, **options):
+        time.sleep(options["time_budget"] * 1.01)
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 3, 40, 0.0,
+                            method="indirect", problem=p, route="stub")
+
+    def no_collocation(*a, **k):
+        raise AssertionError("collocation started after the budget was spent")
+
+    monkeypatch.setattr(api, "_solve_indirect", slow_failure)
+    monkeypatch.setattr("solvers.collocation.solve_collocation", no_collocation)
+    sol = solvers.solve(prob, warm_start=None, time_budget=0.05)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "no time left for the collocation route" in sol.route and "used the whole time budget" in sol.message
+    assert sol.nit == 3 and sol.nfev == 40
