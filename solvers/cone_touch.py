@@ -106,12 +106,14 @@ class TouchProblem:
         self.bvp = bvp
         self.K = len(cone_ids)
         s = bvp.sensor
-        self.M = [cone_matrix(bvp.problem.cones[c].axis, s) for c in cone_ids]
-        self.cos_a = [math.cos(bvp.problem.cones[c].half_angle) for c in cone_ids]
+        # stacked for the compiled flow (``core.touch_sequence``); ``M`` and ``cos_a``, per touch,
+        # are views of the same data
+        self.Ms = np.array([cone_matrix(bvp.problem.cones[c].axis, s) for c in cone_ids], dtype=float).reshape(
+            self.K, 4, 4)
+        self.cos_a_array = np.array([math.cos(bvp.problem.cones[c].half_angle) for c in cone_ids], dtype=float)
+        self.M = list(self.Ms)
+        self.cos_a = self.cos_a_array.tolist()
         self.cone_ids = list(cone_ids)
-        # the same, stacked for the compiled flow (``core.touch_sequence``)
-        self.Ms = np.array(self.M, dtype=float).reshape(self.K, 4, 4)
-        self.cos_a_array = np.array(self.cos_a, dtype=float)
 
     def unpack(self, x):
         K = self.K
@@ -295,25 +297,27 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         big = float(np.max(np.abs(dx) / scale))
         if big > max_step:
             dx *= max_step / big
+        # the full step's trial carries the Jacobian (kept if the step is taken); shorter trials
+        # fly the state alone and the Jacobian follows if one is taken. On the learned cone route
+        # a third of the accepted steps are full steps, and as many full steps are rejected, but
+        # flying every trial without the Jacobian measured no faster (60 problems, twice). An
+        # accepted trial whose Jacobian cannot be had (sensitivities overflowing) is rejected
         alpha, accepted = 1.0, False
         while alpha > 1e-6:
             xt = x + alpha * dx
             if inside(xt):
-                # the full step carries the Jacobian (it is usually taken); shorter trials are
-                # mostly rejected, so they fly the state alone and the Jacobian follows if taken
                 rt, Jt = _structured_residual(tp, *split(xt), st, alpha == 1.0)
                 nfev += 1
                 if rt is not None and float(rt @ rt) < (1.0 - 1e-4 * alpha) * phi:
-                    accepted = True
-                    break
+                    if Jt is None:
+                        rt, Jt = _structured_residual(tp, *split(xt), st, True)
+                        nfev += 1
+                    if rt is not None:
+                        accepted = True
+                        break
             alpha *= 0.5
         if not accepted:
             return pack(x)[0], False, it, nfev, rn, pack(x)[1]
-        if Jt is None:
-            rt, Jt = _structured_residual(tp, *split(xt), st, True)
-            nfev += 1
-            if rt is None:
-                return pack(x)[0], False, it, nfev, rn, pack(x)[1]
         x, r, Jm = xt, rt, Jt
         phi = float(r @ r)
     rn = float(np.max(np.abs(r)))

@@ -204,7 +204,7 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
         if raw >= T:
             continue
         if want_jac and raw > 0.0:
-            # f⁻ - f⁺ differs only in ω̇_a (as in ``solvers.switch_time.switch_event``)
+            # f⁻ - f⁺ differs only in ω̇_a (as in ``switch_event``)
             jumps[kk, 4 + a] = 2.0 * signs[a] * umax[a] / J[a]
         signs[a] = -signs[a]
     if want_jac:

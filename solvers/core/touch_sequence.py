@@ -78,7 +78,9 @@ def touch_sequence_flow(y0, G, times, axes, T, tc, nu, Ms, cos_a, signs0, J, uma
     return (with ``want_jac``), ``dy(T)/dx`` in the column order of ``x`` above. ``S_res[j]``
     is the switching function ``λω_a / J_a`` of switch ``j`` just before it and ``S_jac[j]`` its
     gradient; ``H_res[2k:2k+2]`` is ``[h, ḣ]`` at touch ``k`` and ``H_jac[2k:2k+2]`` its gradient.
-    Events at the same instant run switches first, each kind in index order. Returns
+    Events at the same instant run switches first, each kind in index order. Instants are not
+    clipped to ``[0, T]``: one before 0 acts at 0, and one past ``T`` acts where the flow has
+    stopped, at the latest earlier instant (the caller keeps its iterates inside). Returns
     ``(y(T), ok)``; ``ok`` is False if an arc fails or an instant is not finite.
     """
     n = times.shape[0]
