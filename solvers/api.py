@@ -1537,8 +1537,9 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
                                      unusable=failures if options.get("model_guess") else None,
                                      guess_only=bool(options.get("guess_only"))):
-        # the budget is checked between candidates, and the first one always runs: in a fresh
-        # process compiling the kernels alone can take longer than a short budget
+        # the budget is checked between candidates, and the first one always starts; inside it
+        # the Newton iterations stop at the deadline (in a fresh process, compiling the kernels
+        # alone can take longer than a short budget: the first candidate then ends at once)
         if tried > 0 and time.perf_counter() > deadline:
             break
         tried += 1
