@@ -215,3 +215,21 @@ def test_structure_read_back_from_the_switching_functions(touch_solutions):
     assert fixed is not None
     on_axis = fixed.times[fixed.axes == st.axes[0]]
     assert np.min(np.abs(on_axis - st.times[0])) < 1e-3 * T
+
+
+def test_without_smoothing_the_raw_guess_gets_no_event_driven_newton(touch_solutions, monkeypatch):
+    """A learned guess (``smoothing=False``) whose switch-time solves all fail: no event-driven
+    Newton from the raw guess (it converged 0 times in 166 on the learned cone route), and the
+    failure says what was tried; with smoothing the raw guess still gets it."""
+    import solvers.cone_touch as ct
+    _, sol, _ = touch_solutions
+    calls = []
+    monkeypatch.setattr(ct, "_switch_time_solve", lambda tp, x0, st, deadline=math.inf: (None, 3, 7))
+    real_newton = ct.newton
+    monkeypatch.setattr(ct, "newton", lambda tp, x, **k: calls.append(x) or real_newton(tp, x, **k))
+    out = solve_touch_guess(TOUCH, _answer_guess(sol), smoothing=False)
+    assert not out.success and calls == []
+    # the guess's own structure (its costates propagate to the same one: tried once)
+    assert "converged on none of the guess's 1 structure(s)" in out.message, out.message
+    solve_touch_guess(TOUCH, _answer_guess(sol), smoothing=True, time_budget=0.5)
+    assert len(calls) >= 1
