@@ -1082,6 +1082,15 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     return last
 
 
+def _kernels_cold() -> bool:
+    """Whether the shooting kernels have not run in this process yet (not compiled, nor loaded
+    from numba's cache): the first solve after a fresh install compiles them, for tens of
+    seconds, which no time budget can bound."""
+    from .core.attitude_flow import flow
+    from .core.switch_sequence import sequence_flow
+    return not (flow.signatures and sequence_flow.signatures)
+
+
 def _budget_spent(prob, what, nit, nfev, t0, route) -> SlewSolution:
     """Status 3 where a stage of ``auto`` has used the whole time budget (``what``: the stage,
     the subject of a sentence): the next stage is not started, as building an NLP is not
@@ -1523,6 +1532,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     if prob.is_rest_to_rest:
         baseline = eigenaxis_time(bvp.ref_problem, n_grid=1000) / bvp.tau
     deadline = t_start + budget
+    cold = _kernels_cold()
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     cap = options.get("candidate_cap", CANDIDATE_CAP)
     if cap is not None:
@@ -1537,22 +1547,24 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
                                      unusable=failures if options.get("model_guess") else None,
                                      guess_only=bool(options.get("guess_only"))):
-        # the budget is checked between candidates, and the first one always starts; inside it
-        # the Newton iterations stop at the deadline (in a fresh process, compiling the kernels
-        # alone can take longer than a short budget: the first candidate then ends at once)
+        # the budget is checked between candidates, and the first one always starts; inside a
+        # candidate the Newton iterations stop at the deadline, except in the first candidate of
+        # a process whose kernels are not compiled yet (a fresh install compiles them for tens of
+        # seconds inside it, longer than any budget; the old rule, the first candidate runs)
         if tried > 0 and time.perf_counter() > deadline:
             break
         tried += 1
+        cand_deadline = math.inf if (tried == 1 and cold) else deadline
         # structure templates, model guesses (learned, nearest-neighbour) and the KKT costates of
         # a switch-time optimisation carry a full switching structure: straight to the
         # switch-time Newton, no smoothing path
         path_cost = 0
         if per_axis and st is not None and src.startswith(("template", "learned", "nearest", "switch-time")):
-            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}", deadline=deadline)
+            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}", deadline=cand_deadline)
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         elif per_axis:
-            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline,
+            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=cand_deadline,
                                     T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf,
                                     max_nfev=(max(cap_mult * first_nfev, cap_floor)
                                               if cap is not None and first_nfev is not None else math.inf))
@@ -1560,7 +1572,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
-            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments, deadline=deadline)
+            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments, deadline=cand_deadline)
         nit += a.nit
         nfev += a.nfev
         if not a.success:

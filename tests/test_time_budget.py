@@ -1,8 +1,10 @@
 """solve's ``time_budget`` holds for the whole solve: stages get what is left of it, not a floor
 of their own (collocation used to get at least 1 s, the touch refinement 1.5 s, whatever the
 caller's budget), and ``method="collocation"`` takes it from solve's options."""
+import json
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +15,8 @@ from solvers import api
 from solvers.collocation import solve_collocation
 from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_SUCCESS
 from reference_cases import TOUCH
+
+R3_FILE = Path(__file__).resolve().parent.parent / "examples" / "r3_seed_report_per_axis.json"
 
 FULL = SlewProblem([1.0, 0.8, 0.6], q0=[1.0, 0.0, 0.0, 0.0], qf=[math.cos(0.6), math.sin(0.6), 0.0, 0.0])
 
@@ -50,7 +54,8 @@ def test_collocation_with_its_budget_spent_says_so(touch_col):
     assert not sol.message.rstrip().endswith("IPOPT:")
 
 
-def test_indirect_with_its_budget_spent_has_a_route():
+def test_indirect_with_its_budget_spent_has_a_route(monkeypatch):
+    monkeypatch.setattr(api, "_kernels_cold", lambda: False)   # as after a first solve
     moving = FULL.replace(omega0=[0.05, 0.0, 0.0])
     sol = solvers.solve(moving, method="indirect", warm_start=None, time_budget=1e-3)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
@@ -143,3 +148,22 @@ def test_auto_starts_no_collocation_once_the_indirect_stage_spent_the_budget(mon
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "no time left for the collocation route" in sol.route and "used the whole time budget" in sol.message
     assert sol.nit == 3 and sol.nfev == 40
+
+
+def test_the_first_candidate_of_a_cold_process_runs_past_the_deadline(monkeypatch):
+    """A fresh install compiles the kernels inside the first candidate (tens of seconds, longer
+    than any budget): in a process whose kernels have not run yet, the first candidate is not
+    cut by the deadline (the README's main command on a fresh clone); once they have, it is."""
+    prob = SlewProblem.from_dict(json.loads(R3_FILE.read_text()))
+    monkeypatch.setattr(api, "_kernels_cold", lambda: True)
+    cold = solvers.solve(prob, method="indirect", warm_start=None, time_budget=1e-6)
+    assert cold.success and cold.tf == pytest.approx(2.354017849, rel=1e-8)
+    assert cold.n_candidates == 1
+    monkeypatch.setattr(api, "_kernels_cold", lambda: False)
+    warm = solvers.solve(prob, method="indirect", warm_start=None, time_budget=1e-6)
+    assert not warm.success and warm.status == STATUS_BUDGET_EXHAUSTED
+
+
+def test_kernels_are_warm_after_a_solve():
+    solvers.solve(SlewProblem.from_dict(json.loads(R3_FILE.read_text())), warm_start=None, method="indirect")
+    assert api._kernels_cold() is False
