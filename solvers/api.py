@@ -1384,9 +1384,12 @@ def _certify_clear(prob, sol):
 
 def _clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto"):
     """When collocation fails on a cone problem: the answer of the problem without its cones,
-    if its path clears every cone at every instant (certified), else ``None``. A cone far from
+    if its path clears every cone at every instant (certified), else ``None`` (also with no time
+    left, ``budget_left ≤ 0``). A cone far from
     the path can still upset the NLP; the unconstrained optimum that is feasible is the
     constrained optimum."""
+    if budget_left <= 0.0:      # no time left: the route it would take starts with an NLP build
+        return None
     free_prob = prob.replace(cones=[])
     opts = dict(options, time_budget=_left(budget_left, 0.0))
     free = (_solve_indirect(free_prob, "indirect", None, **opts) if exact_only

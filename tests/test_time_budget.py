@@ -167,3 +167,19 @@ def test_the_first_candidate_of_a_cold_process_runs_past_the_deadline(monkeypatc
 def test_kernels_are_warm_after_a_solve():
     solvers.solve(SlewProblem.from_dict(json.loads(R3_FILE.read_text())), warm_start=None, method="indirect")
     assert api._kernels_cold() is False
+
+
+def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
+    """Collocation with the cones failed and used the budget: the problem without its cones is not
+    started (its route begins with an NLP build: 0.3 s the first time)."""
+    from solvers.solution import SlewSolution
+
+    def no_route(*a, **k):
+        raise AssertionError("a route started after the budget was spent")
+
+    monkeypatch.setattr(api, "_solve_auto", no_route)
+    monkeypatch.setattr(api, "_solve_indirect", no_route)
+    failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                          method="collocation", problem=TOUCH, route="stub")
+    assert api._clear_without_cones(TOUCH, failed, {}, {}, 0.0) is None
+    assert api._clear_without_cones(TOUCH, failed, {}, {}, -0.01, exact_only=True) is None
