@@ -326,7 +326,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
     planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
-    iteration). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
+    iteration); below about 50 ms the fallback's planning (10-25 ms) outgrows that half, and the
+    first solve of a process loads its kernels inside its first candidate (README: A hard time
+    budget). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
     steps (``FALLBACK_GRID_PNORM_GYRO``; at most 5e-5 slower than ``method="eigenaxis"``'s 4,000).
     The route's message says why the fallback was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .shooting import newton_shoot
+from .shooting import STATUS_DEADLINE, newton_shoot
 from .switch_time import Structure, structure_from_trajectory
 
 
@@ -117,6 +117,8 @@ def _continue(bvp, z, T, start, stop, set_param, factor, min_factor, tol, max_ne
             if visit(points[-1]):
                 return PathResult(True, points, nit, nfev, "stopped early")
             f = min(factor, f * 1.5)
+        elif r.status == STATUS_DEADLINE:
+            return PathResult(False, points, nit, nfev, f"time budget exhausted (continuation at {cur:g})")
         else:
             f = math.sqrt(f)
             if f < min_factor:

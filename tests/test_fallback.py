@@ -109,8 +109,9 @@ def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, 
     assert sol.success and sol.method == "eigenaxis"
     assert f"planned in the {1e3 * kept:.0f} ms of the budget kept for it" in sol.route
     assert f"profile, {n_grid} steps)" in sol.message
-    if n_grid < 16000:      # the coarser profile: flyable, and close to the planner's own
-        assert sol.tf == pytest.approx(eigenaxis_answer(prob).tf, rel=1e-4)
+    if n_grid < 16000:      # the coarser profile: flyable, never faster, at most 5e-5 slower
+        fine = eigenaxis_answer(prob).tf
+        assert fine * (1.0 - 1e-12) <= sol.tf <= fine * (1.0 + 5e-5)
     # without the fallback, or where it does not apply, the route has the whole budget
     solvers.solve(prob, method="indirect", warm_start=None, time_budget=budget)
     assert seen["time_budget"] == budget

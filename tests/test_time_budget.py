@@ -164,9 +164,17 @@ def test_the_first_candidate_of_a_cold_process_runs_past_the_deadline(monkeypatc
     assert not warm.success and warm.status == STATUS_BUDGET_EXHAUSTED
 
 
-def test_kernels_are_warm_after_a_solve():
-    solvers.solve(SlewProblem.from_dict(json.loads(R3_FILE.read_text())), warm_start=None, method="indirect")
-    assert api._kernels_cold() is False
+def test_a_new_process_is_cold_until_its_first_solve():
+    import subprocess
+    import sys
+    code = ("import json, solvers, solvers.api as a; from slew_env import SlewProblem; "
+            "print(a._kernels_cold()); "
+            f"solvers.solve(SlewProblem.from_dict(json.loads(open({str(R3_FILE)!r}).read())), warm_start=None, "
+            "method='indirect'); print(a._kernels_cold())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                         cwd=str(R3_FILE.parent.parent))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["True", "False"]
 
 
 def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
