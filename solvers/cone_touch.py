@@ -29,12 +29,11 @@ import time
 
 import numpy as np
 
-from slew_env.core.quaternion import qmul
-from .attitude_bvp import AttitudeBVP, NY, Trajectory, quat_left_matrix
+from .attitude_bvp import AttitudeBVP, NY, Trajectory
 from .clearance import CLEARANCE_TOL, certified_replay, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
-from .core.touch_sequence import touch_sequence_flow
+from .core.touch_sequence import touch_residual, touch_sequence_flow
 from .solution import STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution
 from .indirect import solution_fields
 from .guesses import Guess
@@ -50,31 +49,6 @@ STRUCTURE_REPAIRS = 3     # re-solves of the switch-time problem with the struct
 class TouchBVP(AttitudeBVP):
     """``AttitudeBVP`` (bang-bang) that accepts cones: they enter through the touch junctions."""
     handles_cones = True
-
-
-def _right_matrix(p):
-    """``R(p)`` with ``x ⊗ p = R(p) x``."""
-    p0, p1, p2, p3 = p
-    return np.array([[p0, -p1, -p2, -p3],
-                     [p1, p0, p3, -p2],
-                     [p2, -p3, p0, p1],
-                     [p3, p2, -p1, p0]])
-
-
-def _touch_residual(y, M, cos_a):
-    """``[h, ḣ]`` at the augmented state ``y`` and their gradient (2 x 14)."""
-    q, w = y[0:4], y[4:7]
-    Mq = M @ q
-    qdot = 0.5 * qmul(q, np.array([0.0, *w]))
-    h = float(q @ Mq) - cos_a
-    hd = 2.0 * float(Mq @ qdot)
-    g = np.zeros((2, NY))
-    g[0, 0:4] = 2.0 * Mq
-    dqd_dq = 0.5 * _right_matrix(np.array([0.0, *w]))
-    dqd_dw = 0.5 * quat_left_matrix(q)[:, 1:4]
-    g[1, 0:4] = 2.0 * (M @ qdot) + 2.0 * dqd_dq.T @ Mq
-    g[1, 4:7] = 2.0 * dqd_dw.T @ Mq
-    return np.array([h, hd]), g
 
 
 def touch_jump(M, nu, y, G=None, nu_col=None):
@@ -154,7 +128,7 @@ class TouchProblem:
                 if k > 0:
                     De[:, 7 + k - 1] -= fe
             if k < K:
-                r, g = _touch_residual(ye, self.M[k], self.cos_a[k])
+                r, g = touch_residual(ye, self.M[k], self.cos_a[k])
                 R.append(r)
                 if want_jac:
                     Jr.append(g @ De)

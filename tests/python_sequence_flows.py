@@ -2,11 +2,38 @@
 (a 14-column transition matrix per arc, then ``Φ @ G``), kept here to test them against."""
 import numpy as np
 
-from solvers.attitude_bvp import NY
-from solvers.cone_touch import _touch_residual, touch_jump
+from slew_env.core.quaternion import qmul
+from solvers.attitude_bvp import NY, quat_left_matrix
+from solvers.cone_touch import touch_jump
 from solvers.core.attitude_flow import ext_rhs
 
 _EYE = np.eye(NY)
+
+
+def _right_matrix(p):
+    """``R(p)`` with ``x ⊗ p = R(p) x``."""
+    p0, p1, p2, p3 = p
+    return np.array([[p0, -p1, -p2, -p3],
+                     [p1, p0, p3, -p2],
+                     [p2, -p3, p0, p1],
+                     [p3, p2, -p1, p0]])
+
+
+def _touch_residual(y, M, cos_a):
+    """``[h, ḣ]`` at the augmented state ``y`` and their gradient (2 x 14), with numpy
+    (the compiled ``core.touch_sequence.touch_residual`` is tested against it)."""
+    q, w = y[0:4], y[4:7]
+    Mq = M @ q
+    qdot = 0.5 * qmul(q, np.array([0.0, *w]))
+    h = float(q @ Mq) - cos_a
+    hd = 2.0 * float(Mq @ qdot)
+    g = np.zeros((2, NY))
+    g[0, 0:4] = 2.0 * Mq
+    dqd_dq = 0.5 * _right_matrix(np.array([0.0, *w]))
+    dqd_dw = 0.5 * quat_left_matrix(q)[:, 1:4]
+    g[1, 0:4] = 2.0 * (M @ qdot) + 2.0 * dqd_dq.T @ Mq
+    g[1, 4:7] = 2.0 * dqd_dw.T @ Mq
+    return np.array([h, hd]), g
 
 
 def advance(bvp, y, G, dt, signs, want_jac):

@@ -3,10 +3,11 @@ loop it replaced, and the cone's ``[h, ḣ]`` gradient against finite difference
 import numpy as np
 import pytest
 
-from solvers.cone_touch import TouchBVP, TouchProblem, _structured_residual, _touch_residual
+from solvers.cone_touch import TouchBVP, TouchProblem, _structured_residual
 from solvers.core.touch_sequence import touch_residual
 from solvers.switch_time import Structure
 
+from python_sequence_flows import _touch_residual
 from python_sequence_flows import touch_residual as python_touch_residual
 from reference_cases import TOUCH
 
