@@ -1089,8 +1089,8 @@ def _kernels_cold() -> bool:
     from numba's cache): the first solve after a fresh install compiles them, for tens of
     seconds, which no time budget can bound."""
     from .core.attitude_flow import flow
-    from .core.switch_sequence import sequence_flow
-    return not (flow.signatures and sequence_flow.signatures)
+    from .core.touch_sequence import touch_sequence_flow
+    return not (flow.signatures and touch_sequence_flow.signatures)
 
 
 def _budget_spent(prob, what, nit, nfev, t0, route) -> SlewSolution:

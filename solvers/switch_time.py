@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attitude_bvp import NY
-from .core.switch_sequence import sequence_end, sequence_flow
+from .core.switch_sequence import sequence_end
+from .core.touch_sequence import touch_sequence_flow
 
 
 @dataclass
@@ -61,12 +62,17 @@ class SwitchTimeResult:
         return float(np.sum(self.durations))
 
 
+# no touches: the touch instants, multipliers and cones' cosines, and the cone matrices
+_NO_TOUCH = np.zeros(0)
+_NO_CONES = np.zeros((0, 4, 4))
+
+
 def _residual(bvp, z, times, T, st, want_jac):
     """Residual and Jacobian in the unknowns ``x = [z (6), switch times (n), T]``.
 
     Switch times are absolute and sorted at each evaluation, so switches on
     different axes may change order freely (the control is separable by axis). The arcs
-    and switches run in one compiled call (``core.switch_sequence.sequence_flow``).
+    and switches run in one compiled call (``core.touch_sequence.touch_sequence_flow``, no touches).
     """
     n = st.n
     nx = 6 + n + 1
@@ -80,9 +86,11 @@ def _residual(bvp, z, times, T, st, want_jac):
     r[0] = rp[0]
     if want_jac:
         Jm[0, :6] = drp[0]
-    y, ok = sequence_flow(y, G, np.ascontiguousarray(times, dtype=float), np.ascontiguousarray(st.axes, dtype=np.int64),
-                          float(T), np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps,
-                          bvp.rtol, bvp.atol, bvp.pen, bool(want_jac), r[1:1 + n], S_jac)
+    y, ok = touch_sequence_flow(y, G, np.ascontiguousarray(times, dtype=float),
+                                np.ascontiguousarray(st.axes, dtype=np.int64), float(T), _NO_TOUCH, _NO_TOUCH,
+                                _NO_CONES, _NO_TOUCH, np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax, bvp.mode,
+                                bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen, bool(want_jac), r[1:1 + n], S_jac,
+                                _NO_TOUCH, np.zeros((0, nx)))
     if not ok:
         return None, None
     rt, dry, drT = bvp.terminal(y, T)

@@ -1,15 +1,16 @@
-"""Compiled flow of a fixed bang-bang switching sequence, for switch-time shooting.
+"""Compiled steps of a fixed bang-bang switching sequence, for switch-time shooting.
 
-``sequence_flow`` integrates the extremal's arcs between given switch instants (any order:
-sorted here, stably) with the signs held fixed on each arc, and carries the sensitivity
-``G = dy/dx`` to the shooting unknowns ``x = [z (6), t_1 … t_n, T]`` through every arc and
-switch, with the switching functions at the switches and their gradients. It is the loop
-``solvers.switch_time._residual`` ran arc by arc in Python (a transition matrix per arc, then
-``Φ @ G``), in one compiled call: the Python overhead per arc was larger than the arc's
-integration. Only the columns already non-zero ride along: those of ``z`` and of the switches
-passed so far (the others, and ``T``'s, are zero until their switch or the end), so an early
-arc carries 6 columns instead of 14. The step sizes depend on the state alone (the error norm
-ignores the sensitivities), so the arcs take the same steps as before.
+``advance_columns`` flies one arc with the signs held fixed, carrying only the sensitivity
+columns already non-zero (those of ``z`` and of the switches passed so far: an early arc carries
+6 columns instead of 14), and ``switch_event`` applies a switch: its switching function, the
+function's gradient, and the jump of the switch instant's column. The event loop of switch-time
+shooting, with or without touches of keep-out cones, is ``touch_sequence.touch_sequence_flow``
+(``solvers.switch_time._residual`` calls it with no touches); it replaced the loop that ran arc by
+arc in Python (a transition matrix per arc, then ``Φ @ G``), whose overhead per arc was larger
+than the arc's integration. The step sizes depend on the state alone (the error norm ignores the
+sensitivities), so the arcs take the same steps as before. ``sequence_end`` and
+``sequence_samples`` are the forward passes of the switch-time optimisers (end state, sampled
+states, and their derivatives in the switch instants).
 """
 import numpy as np
 from numba import njit
@@ -113,50 +114,6 @@ def switch_event(y, G, signs, a, j, J, umax, want_jac, S_res, S_jac, active, n_a
         n_active += 1
     signs[a] = -signs[a]
     return n_active
-
-
-@njit(cache=True)
-def sequence_flow(y0, G, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
-                  S_res, S_jac):
-    """Arcs of ``y0`` (NY,) over ``[0, T]`` with switches of axes ``axes`` at ``times``.
-
-    ``G`` (NY, 6 + n + 1): on entry, columns 0-5 hold ``dy0/dz`` and the rest zeros; on
-    return (with ``want_jac``), ``dy(T)/dx`` with switch ``j``'s column at ``6 + j`` (the
-    caller's order) and ``T``'s last. ``S_res[j]`` is the switching function
-    ``λω_a / J_a`` of switch ``j`` just before it; ``S_jac[j]`` its gradient in ``x``.
-    Returns ``(y(T), ok)``; ``ok`` is False if an arc fails or a time is not finite.
-    """
-    n = times.shape[0]
-    nx = 6 + n + 1
-    y = y0.copy()
-    signs = signs0.copy()
-    if not _finite_times(times, T):
-        return y, False
-    order = np.argsort(times, kind="mergesort")      # stable, as np.argsort(kind="stable")
-    active = np.empty(nx, dtype=np.int64)
-    for c in range(6):
-        active[c] = c
-    n_active = 6
-    t_prev = 0.0
-    for k in range(n + 1):
-        t_next = T if k == n else times[order[k]]
-        dt = t_next - t_prev
-        if dt > 0.0:
-            y, ok = advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen,
-                                    want_jac)
-            if not ok:
-                return y, False
-        if t_next > t_prev:
-            t_prev = t_next
-        if k == n:
-            break
-        j = order[k]
-        n_active = switch_event(y, G, signs, axes[j], j, J, umax, want_jac, S_res, S_jac, active, n_active)
-    if want_jac:
-        f = ext_rhs(y, umax * signs, J)
-        for i in range(NY):
-            G[i, nx - 1] += f[i]
-    return y, True
 
 
 @njit(cache=True)

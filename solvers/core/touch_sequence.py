@@ -1,7 +1,7 @@
-"""Compiled flow of a fixed bang-bang switching sequence with touch-point junctions on cones.
+"""Compiled flow of a fixed bang-bang switching sequence, with touch-point junctions on cones.
 
 ``touch_sequence_flow`` is the loop of ``solvers.cone_touch._structured_residual`` in one
-compiled call: the arcs between switches and touches with the signs held fixed, the switching
+compiled call, and, with no touches, of the switch-time Newton's ``solvers.switch_time._residual``: the arcs between switches and touches with the signs held fixed, the switching
 functions at the switches, ``[h, ḣ]`` at each touch (the path tangent to the cone there) and the
 costate jump ``λq⁺ = λq⁻ - 2 ν M q`` after it, with the sensitivity ``G = dy/dx`` to the unknowns
 
@@ -10,9 +10,9 @@ costate jump ``λq⁺ = λq⁻ - 2 ν M q`` after it, with the sensitivity ``G =
 carried through every arc and event. In Python each arc cost a call into the integrator with a
 full 14-column transition matrix, then ``Φ @ G``, and the per-event bookkeeping was about a
 third of a learned cone candidate's time. Here only the columns already non-zero ride along an
-arc (those of ``z``, and of the switches and touches passed so far), as in
-``switch_sequence.sequence_flow``; the step sizes depend on the state alone, so the arcs take the
-same steps as the Python loop's.
+arc (those of ``z``, and of the switches and touches passed so far; the arc and switch steps are
+``switch_sequence``'s); the step sizes depend on the state alone, so the arcs take the same steps
+as the Python loop's.
 """
 import numpy as np
 from numba import njit
@@ -125,7 +125,7 @@ def touch_sequence_flow(y0, G, times, axes, T, tc, nu, Ms, cos_a, signs0, J, uma
         r, g = touch_residual(y, M, cos_a[k])
         H_res[2 * k] = r[0]
         H_res[2 * k + 1] = r[1]
-        Mq = _mat4_vec(M, y)
+        Mq = 0.5 * g[0, 0:4]        # ∂h/∂q = 2 M q (halving is exact)
         if want_jac:
             f = ext_rhs(y, umax * signs, J)
             for row in range(2):
