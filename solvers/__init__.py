@@ -6,6 +6,7 @@ from .api import METHODS, solve
 from .guesses import Guess, eigenaxis_guess
 from .solution import STATUS_MESSAGES, SlewSolution
 from .eigenaxis import eigenaxis_slew, EigenaxisSlew
+from .kernel_loading import load_kernels
 
 __all__ = ["solve", "METHODS", "Guess", "eigenaxis_guess", "SlewSolution", "STATUS_MESSAGES",
-           "eigenaxis_slew", "EigenaxisSlew"]
+           "eigenaxis_slew", "EigenaxisSlew", "load_kernels"]

@@ -55,6 +55,7 @@ import numpy as np
 from slew_env import SlewProblem
 from .attitude_bvp import AttitudeBVP
 from .blas_threads import single_threaded_blas
+from .kernel_loading import ensure_kernels
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solution_fields, solve_structure
 from .shooting import newton_shoot
@@ -326,9 +327,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
     planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
-    iteration); below about 50 ms the fallback's planning (10-25 ms) outgrows that half, and the
-    first solve of a process loads its kernels inside its first candidate (README: A hard time
-    budget). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
+    iteration); below about 50 ms the fallback's planning (10-25 ms) outgrows that half (README:
+    A hard time budget). The budget's clock starts after the compiled kernels of the problem's
+    kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
+    ``kernel_load_time``; ``solvers.load_kernels`` does it at start-up), and collocation builds
+    no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
     steps (``FALLBACK_GRID_PNORM_GYRO``; at most 5e-5 slower than ``method="eigenaxis"``'s 4,000).
     The route's message says why the fallback was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
@@ -383,6 +386,18 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
+    # the kernels are loaded (on a fresh install, compiled) before the clock starts: the time
+    # budget is for solving, and loading inside it would cut the first solve of a process short
+    load = 0.0 if method == "eigenaxis" else ensure_kernels(prob)
+    sol = _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, reserved,
+                    check_local, use_table)
+    sol.kernel_load_time = load
+    return sol
+
+
+def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, reserved, check_local,
+              use_table) -> SlewSolution:
+    """``_solve`` after its arguments were checked and the kernels loaded."""
     if method == "collocation":
         from .collocation import solve_collocation
         # solve's own time_budget and tols hold for collocation too (the ``collocation`` dict's win)
@@ -1084,15 +1099,6 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     return last
 
 
-def _kernels_cold() -> bool:
-    """Whether the shooting kernels have not run in this process yet (not compiled, nor loaded
-    from numba's cache): the first solve after a fresh install compiles them, for tens of
-    seconds, which no time budget can bound."""
-    from .core.attitude_flow import flow
-    from .core.touch_sequence import touch_sequence_flow
-    return not (flow.signatures and touch_sequence_flow.signatures)
-
-
 def _budget_spent(prob, what, nit, nfev, t0, route) -> SlewSolution:
     """Status 3 where a stage of ``auto`` has used the whole time budget (``what``: the stage,
     the subject of a sentence): the next stage is not started, as building an NLP is not
@@ -1537,7 +1543,6 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
     if prob.is_rest_to_rest:
         baseline = eigenaxis_time(bvp.ref_problem, n_grid=1000) / bvp.tau
     deadline = t_start + budget
-    cold = _kernels_cold()
     method_used = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     cap = options.get("candidate_cap", CANDIDATE_CAP)
     if cap is not None:
@@ -1553,23 +1558,21 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
                                      unusable=failures if options.get("model_guess") else None,
                                      guess_only=bool(options.get("guess_only"))):
         # the budget is checked between candidates, and the first one always starts; inside a
-        # candidate the Newton iterations stop at the deadline, except in the first candidate of
-        # a process whose kernels are not compiled yet (a fresh install compiles them for tens of
-        # seconds inside it, longer than any budget; the old rule, the first candidate runs)
+        # candidate the Newton iterations stop at the deadline (the kernels were loaded before
+        # the clock started: ``kernel_loading``)
         if tried > 0 and time.perf_counter() > deadline:
             break
         tried += 1
-        cand_deadline = math.inf if (tried == 1 and cold) else deadline
         # structure templates, model guesses (learned, nearest-neighbour) and the KKT costates of
         # a switch-time optimisation carry a full switching structure: straight to the
         # switch-time Newton, no smoothing path
         path_cost = 0
         if per_axis and st is not None and src.startswith(("template", "learned", "nearest", "switch-time")):
-            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}", deadline=cand_deadline)
+            a = solve_structure(bvp, z, T, st, route=f"switch-time from {src}", deadline=deadline)
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         elif per_axis:
-            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=cand_deadline,
+            a = per_axis_from_guess(bvp, z, T, st, eps_min=eps_min, deadline=deadline,
                                     T_accept=baseline * (1 + 1e-7) if baseline == baseline else math.inf,
                                     max_nfev=(max(cap_mult * first_nfev, cap_floor)
                                               if cap is not None and first_nfev is not None else math.inf))
@@ -1577,7 +1580,7 @@ def _solve_indirect(prob, method, guess, first_verified=False, **options) -> Sle
             if a.success and segments > 1:
                 a = _polish_multiple(bvp, a, segments)
         else:
-            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments, deadline=cand_deadline)
+            a = pnorm_from_guess(bvp, z, T, prob.torque_norm, segments=segments, deadline=deadline)
         nit += a.nit
         nfev += a.nfev
         if not a.success:

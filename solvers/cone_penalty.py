@@ -43,8 +43,9 @@ from .attitude_bvp import AttitudeBVP, NY
 from .clearance import CLEARANCE_TOL, cone_clearances
 from .core import attitude_flow as af
 from .core import cone_penalty as cp
-from .shooting import newton_shoot
-from .solution import (STATUS_NOT_CONVERGED, STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, SlewSolution)
+from .shooting import STATUS_DEADLINE, newton_shoot
+from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
+                       STATUS_VERIFICATION_FAILED, SlewSolution)
 from .verify import DEFAULT_TOLS, boundary_checks, failure_text, make_check, rate_limit_check
 
 # (ε, w) stages of the homotopy from the collocation costates; each one is solved by
@@ -66,6 +67,27 @@ CERTIFY_STEPS = 8000         # samples for the certified clearance; every 4th is
 def _log_cosh(x):
     ax = np.abs(x)
     return ax + np.log1p(np.exp(-2.0 * ax)) - math.log(2.0)
+
+
+def load_kernels() -> None:
+    """Call the penalty's kernels once, with the argument types this module gives them, so that
+    they are loaded before a solve's clock starts (``kernel_loading``): the route runs only after
+    the touch-point solver failed, which no quick representative solve reaches."""
+    y = np.zeros(NY)
+    y[0] = 1.0
+    pen = cp.pack([_LoadCone()], np.array([1.0, 0.0, 0.0]), 1.0, 0.0)
+    cp.penalty_value(y, pen)
+    cp.penalty_rhs_into(y, pen, np.zeros(NY))
+    ones = np.ones(3)
+    u = af.control_batch(np.tile(y, (2, 1)), ones, ones, af.MODE_TANH, 0.0, 0.1, np.ones((2, 3)))
+    inertia = np.ones(3)
+    inertia.flags.writeable = False      # as a SlewProblem's arrays
+    propagate(np.array([1.0, 0, 0, 0, 0, 0, 0]), u[0].copy(), inertia, 0.1, 2)
+
+
+class _LoadCone:
+    axis = np.array([0.0, 0.0, 1.0])
+    half_angle = 0.1
 
 
 class ConePenaltyBVP(AttitudeBVP):
@@ -162,6 +184,7 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
     final time no more than ``MAX_GAP`` above the seed's (``regularisation``).
     """
     t_start = time.perf_counter()
+    deadline = t_start + float(time_budget)
     M = int(segments)
     if M < 2:
         raise ValueError(f"segments: the penalty route uses multiple shooting, needs ≥ 2, got {segments}")
@@ -182,17 +205,18 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
         # tolerance (the stiff penalty puts the residual's noise floor near 1e-9 there)
         bvp.rtol, bvp.atol = (ANSWER_RTOL, ANSWER_RTOL * 0.1) if final else (PATH_RTOL, PATH_RTOL * 0.1)
         r = newton_shoot(bvp, z, T, segments=M, nodes0=nodes, tol=3e-9 if final else 1e-7, max_iter=40,
-                         max_step=0.5, linear_solver="lu")
+                         max_step=0.5, linear_solver="lu", deadline=deadline)
         nit += r.nit
         nfev += r.nfev
-        log.append(f"ε={eps:g} w={w:g}: {'ok' if r.success else 'failed'} ({r.nit} it)")
+        outcome = "ok" if r.success else "cut by the time budget" if r.status == STATUS_DEADLINE else "failed"
+        log.append(f"ε={eps:g} w={w:g}: {outcome} ({r.nit} it)")
         return r
 
     backoff = np.zeros(len(problem.cones))
     prev = None
     for eps, w in stages:
-        if time.perf_counter() - t_start > time_budget:
-            log.append("time budget exhausted")
+        if time.perf_counter() > deadline:
+            log.append("the time budget ran out")
             break
         r = shoot(eps, w, backoff, z, T, nodes)
         if not r.success and prev is not None:
@@ -206,8 +230,9 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
             break
         z, T, nodes, reached, prev = r.p, r.T, r.nodes, (eps, w), (eps, w)
     if reached is None:
-        return SlewSolution(False, STATUS_NOT_CONVERGED,
-                            "Penalty homotopy: no stage converged from the seed's costates (" + "; ".join(log) + ").",
+        status = STATUS_BUDGET_EXHAUSTED if time.perf_counter() > deadline else STATUS_NOT_CONVERGED
+        return SlewSolution(False, status, (f"{STATUS_MESSAGES[status]} " if status == STATUS_BUDGET_EXHAUSTED else "")
+                            + "Penalty homotopy: no stage converged from the seed's costates (" + "; ".join(log) + ").",
                             nit, nfev, time.perf_counter() - t_start, method="indirect",
                             route="cone penalty homotopy: " + "; ".join(log), guess="collocation", problem=problem)
     eps, w = reached
@@ -220,7 +245,7 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
         # a path that starts or ends on a cone boundary (R4) cannot clear it by more there
         aim = np.minimum(CLEARANCE_AIM, np.array([min(c[2], c[3]) for c in clear]))
         short = cert < aim - ENDPOINT_SLACK
-        if not np.any(short) or time.perf_counter() - t_start > time_budget:
+        if not np.any(short) or time.perf_counter() > deadline:
             break
         need = np.where(short, aim + CLEARANCE_AIM - cert, 0.0)
         for frac in (1.0, 0.5, 0.25):   # a large move of the boundary arc may need smaller steps
@@ -296,7 +321,8 @@ def _verified_solution(bvp, problem, seed, z, T, nodes, tols):
     t_out, Y_out = t[keep], Y[keep]
     if t_out[-1] != t[-1]:
         t_out, Y_out = np.append(t_out, t[-1]), np.vstack([Y_out, Y[-1:]])
-    u = af.control_batch(Y_out, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, np.ones((Y_out.shape[0], 3))) * umax0
+    u = af.control_batch(np.ascontiguousarray(Y_out), bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps,
+                         np.ones((Y_out.shape[0], 3))) * umax0
     x = np.concatenate([problem.q0, problem.omega0])
     for k in range(t_out.shape[0] - 1):
         h = t_out[k + 1] - t_out[k]

@@ -64,7 +64,10 @@ class SlewSolution:
     warm start: ``model``, ``covered`` or the ``reason`` it was not, ``succeeded``,
     ``candidates`` tried, ``time_s`` spent on it, ``inference_s``; with the shipped model also
     ``predicted_tf`` and, when ``auto`` checked its answer against the collocation route,
-    ``local_optimum_check``; ``table_error`` if a shipped table could not be read).
+    ``local_optimum_check``; ``table_error`` if a shipped table could not be read);
+    ``kernel_load_time`` (s): loading the compiled kernels of the problem's kind before the clock
+    started, the first solve of that kind in a process only (not in ``wall_time``, not in the
+    time budget; ``solvers.load_kernels``).
     """
     success: bool
     status: int
@@ -90,6 +93,7 @@ class SlewSolution:
     baseline_tf: float = math.nan
     verification: dict = field(default_factory=dict)
     warm_start: dict = field(default_factory=dict)
+    kernel_load_time: float = 0.0
     problem: Any = None
     _control: Optional[Callable] = None
     # collocation's deferred tf_tol measurement (``collocation.settle_tf_tol``), if any
@@ -142,7 +146,7 @@ class SlewSolution:
             "success": self.success, "status": self.status, "message": self.message, "exact": self.exact,
             "tf": self.tf, "tf_tol": self.tf_tol, "costate0": self.costate0, "switch_times": self.switch_times,
             "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
-            "wall_time_s": self.wall_time, "method": self.method, "route": self.route,
+            "wall_time_s": self.wall_time, "kernel_load_time_s": self.kernel_load_time, "method": self.method, "route": self.route,
             "guess": self.guess, "n_candidates": self.n_candidates,
             "candidates_tf": self.candidates_tf, "baseline_tf": self.baseline_tf,
             "verification": self.verification, "warm_start": self.warm_start,

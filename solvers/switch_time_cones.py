@@ -288,7 +288,7 @@ PULSE_ROUNDS = (0, 4, 8)
 _COMPILED = []
 
 
-def _compile_kernels():
+def load_kernels():
     """Compile (or load from numba's cache) the kernels this module runs, once per process, on
     a one-switch problem: in a fresh install the compilation takes seconds, longer than the
     optimisation's budget."""
@@ -335,7 +335,7 @@ def bang_bang_cone_answer(problem, col, time_budget=1.0, tols=None):
     if (not col.success or not switch_time_cones_applies(problem) or col.switch_times is None or col.t is None
             or len(col.t) < 2 or rate_limit_active(problem, col)):
         return None
-    _compile_kernels()      # (a fresh install compiles them once: not on this step's budget)
+    load_kernels()      # (a fresh install compiles them once: not on this step's budget)
     t0 = time.perf_counter()
     return answer_from_collocation(problem, col, AttitudeBVP(problem.replace(cones=())), optimise_switch_times_cones,
                                    time_budget, tols, SLSQP_ITERATIONS, t0, PULSE_ROUNDS, stop_at_kkt_only=True)[0]

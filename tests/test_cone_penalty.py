@@ -155,3 +155,21 @@ def test_r4_without_the_cone_is_faster(r4_indirect):
     assert free.success
     assert free.tf < sol.tf - 0.01
     assert margins(p, free.q).min() < -1e-2   # it cuts through the cone
+
+
+def test_penalty_route_keeps_its_budget():
+    """Cut by its time budget before any stage converged: status 3 (the budget), not 1, and the
+    stage the deadline cut says so."""
+    from solvers.cone_penalty import solve_penalised
+    from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES
+    p = melton(45.0, -90.0)
+    seed = solve(p, method="collocation")
+    assert seed.success
+    sol = solve_penalised(p, seed, time_budget=1e-9)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert sol.message.startswith(STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED])
+    assert "the time budget ran out" in sol.message
+    # with a budget that ends inside the first stage's Newton iterations
+    sol = solve_penalised(p, seed, time_budget=2e-3)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "cut by the time budget" in sol.message

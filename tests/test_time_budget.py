@@ -54,8 +54,7 @@ def test_collocation_with_its_budget_spent_says_so(touch_col):
     assert not sol.message.rstrip().endswith("IPOPT:")
 
 
-def test_indirect_with_its_budget_spent_has_a_route(monkeypatch):
-    monkeypatch.setattr(api, "_kernels_cold", lambda: False)   # as after a first solve
+def test_indirect_with_its_budget_spent_has_a_route():
     moving = FULL.replace(omega0=[0.05, 0.0, 0.0])
     sol = solvers.solve(moving, method="indirect", warm_start=None, time_budget=1e-3)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
@@ -142,39 +141,13 @@ def test_auto_starts_no_collocation_once_the_indirect_stage_spent_the_budget(mon
     def no_collocation(*a, **k):
         raise AssertionError("collocation started after the budget was spent")
 
+    solvers.load_kernels(prob)      # (its representative solves must not meet the stubs)
     monkeypatch.setattr(api, "_solve_indirect", slow_failure)
     monkeypatch.setattr("solvers.collocation.solve_collocation", no_collocation)
     sol = solvers.solve(prob, warm_start=None, time_budget=0.05)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "no time left for the collocation route" in sol.route and "used the whole time budget" in sol.message
     assert sol.nit == 3 and sol.nfev == 40
-
-
-def test_the_first_candidate_of_a_cold_process_runs_past_the_deadline(monkeypatch):
-    """A fresh install compiles the kernels inside the first candidate (tens of seconds, longer
-    than any budget): in a process whose kernels have not run yet, the first candidate is not
-    cut by the deadline (the README's main command on a fresh clone); once they have, it is."""
-    prob = SlewProblem.from_dict(json.loads(R3_FILE.read_text()))
-    monkeypatch.setattr(api, "_kernels_cold", lambda: True)
-    cold = solvers.solve(prob, method="indirect", warm_start=None, time_budget=1e-6)
-    assert cold.success and cold.tf == pytest.approx(2.354017849, rel=1e-8)
-    assert cold.n_candidates == 1
-    monkeypatch.setattr(api, "_kernels_cold", lambda: False)
-    warm = solvers.solve(prob, method="indirect", warm_start=None, time_budget=1e-6)
-    assert not warm.success and warm.status == STATUS_BUDGET_EXHAUSTED
-
-
-def test_a_new_process_is_cold_until_its_first_solve():
-    import subprocess
-    import sys
-    code = ("import json, solvers, solvers.api as a; from slew_env import SlewProblem; "
-            "print(a._kernels_cold()); "
-            f"solvers.solve(SlewProblem.from_dict(json.loads(open({str(R3_FILE)!r}).read())), warm_start=None, "
-            "method='indirect'); print(a._kernels_cold())")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                         cwd=str(R3_FILE.parent.parent))
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.split() == ["True", "False"]
 
 
 def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
@@ -191,3 +164,22 @@ def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
                           method="collocation", problem=TOUCH, route="stub")
     assert api._clear_without_cones(TOUCH, failed, {}, {}, 0.0) is None
     assert api._clear_without_cones(TOUCH, failed, {}, {}, -0.01, exact_only=True) is None
+
+
+def test_no_nlp_is_built_that_the_budget_cannot_pay_for():
+    """Building an NLP (CasADi) is not interruptible: one not yet built in the process is not
+    started when the budget left is shorter than its estimated build time."""
+    from solvers import collocation
+    prob = FULL.replace(cones=[{"axis": [0.0, 0.0, 1.0], "half_angle": 0.2}] * 2, q0=[1, 0, 0, 0])
+    key_n = 37       # a mesh no other test uses: its NLP is not in the cache
+    assert collocation.build_estimate(key_n, 2) > 0.1
+    t0 = time.perf_counter()
+    sol = solve_collocation(prob, n_intervals=key_n, coarse=False, time_budget=0.05)
+    assert time.perf_counter() - t0 < 0.05 + 0.05
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert sol.route == "Hermite–Simpson: no time to build the NLP"
+    assert "N=37" in sol.message and "2 cone(s)" in sol.message
+    assert not any(k[0] == key_n for k in collocation._CACHE)
+    # with the time, the same NLP is built and solved
+    assert solve_collocation(prob, n_intervals=key_n, coarse=False, time_budget=60.0).success
+    assert any(k[0] == key_n for k in collocation._CACHE)

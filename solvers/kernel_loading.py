@@ -1,0 +1,121 @@
+"""Load the compiled kernels a kind of problem uses before a solve's clock starts.
+
+numba compiles a kernel at its first call in a process, or loads it from its on-disk cache
+(``cache=True``): 30–75 ms for the set a solve uses once the cache exists, tens of seconds on a
+fresh install, which compiles them. Inside a solve that time would count against its
+``time_budget`` and cut the solve short. ``solve`` therefore calls ``ensure_kernels`` before it
+starts its clock: the first solve of each kind of problem in a process solves small
+representative problems of that kind first, without a budget, so that every kernel its routes
+call is loaded. A time budget then holds from the first solve on.
+
+The kinds are the combinations of the torque bound (per-axis or p-norm), the target
+(full attitude or pointing only) and whether the problem has keep-out cones: the kernels'
+argument types differ between them, not between problems of one kind.
+``tests/test_kernel_loading.py`` checks, in a new process, that after loading, the routes of
+each kind (``auto`` with and without the shipped models, ``indirect``, ``multiple-shooting``,
+the eigenaxis fallback, ``method="eigenaxis"``) load no further kernel.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+
+from slew_env import Cone, SlewProblem
+
+_LOADED: dict = {}          # kind -> seconds spent loading it in this process
+_LOCK = threading.RLock()
+
+
+def problem_kind(problem: SlewProblem) -> tuple:
+    """``(bound, target, cones)``: ``"per-axis"`` or ``"p-norm"``, ``"full"`` or ``"pointing"``,
+    ``True`` where the problem has keep-out cones."""
+    bound = "per-axis" if math.isinf(problem.torque_norm) else "p-norm"
+    target = "pointing" if problem.sensor_target is not None else "full"
+    return bound, target, bool(problem.cones)
+
+
+def _representatives(kind: tuple) -> list:
+    """Small problems of ``kind`` whose solves take the kind's routes quickly once loaded."""
+    bound, target, cones = kind
+    p = math.inf if bound == "per-axis" else 2.0
+    inertia = [1.0, 0.8, 0.6]
+    if target == "full":
+        half = 0.6
+        base = SlewProblem(inertia, torque_norm=p, q0=[1.0, 0.0, 0.0, 0.0],
+                           qf=[math.cos(half), math.sin(half) * 0.6, math.sin(half) * 0.8, 0.0])
+        if not cones:     # a symmetric body's eigenaxis baseline takes other kernels
+            return [base, base.replace(inertia=[1.0, 1.0, 1.0])]
+    else:
+        base = SlewProblem(inertia, torque_norm=p, q0=[1.0, 0.0, 0.0, 0.0], sensor_target=[0.3, 0.5, 0.81])
+    if cones:
+        # the sensor (body x) starts on the far side of a cone from its target: the path touches it
+        axis = np.array([0.55, 0.25, 0.45])
+        base = base.replace(cones=[Cone(axis / np.linalg.norm(axis), 0.3)])
+    return [base]
+
+
+def _load_kind(kind: tuple) -> None:
+    from .api import solve
+    from .collocation import load_replay_kernels
+    for prob in _representatives(kind):
+        # the default route (the learned guess where a shipped model covers the kind); the
+        # eigenaxis slew (``auto``'s baseline and the fallback) where it is defined
+        solve(prob)
+        if kind[1] == "full" and not kind[2]:
+            solve(prob, method="eigenaxis")
+    if kind[2]:
+        from .cone_penalty import load_kernels as load_penalty_kernels
+        from .switch_time_cones import load_kernels as load_switch_time_cone_kernels
+        load_penalty_kernels()
+        load_switch_time_cone_kernels()
+    # collocation's replay of its control and its costate estimates (``auto``'s route where the
+    # learned guess fails, the default route with cones): they run after its NLP, which is not
+    # worth solving here
+    load_replay_kernels()
+
+
+def ensure_kernels(problem: SlewProblem) -> float:
+    """Load (or on a fresh install compile) the kernels that solves of ``problem``'s kind use,
+    once a process; returns the seconds it took (0 when they were loaded already)."""
+    kind = problem_kind(problem)
+    if kind in _LOADED:
+        return 0.0
+    with _LOCK:
+        if kind in _LOADED:
+            return 0.0
+        _LOADED[kind] = math.nan      # solves inside the loading do not load again
+        t0 = time.perf_counter()
+        try:
+            _load_kind(kind)
+        except BaseException:
+            del _LOADED[kind]
+            raise
+        _LOADED[kind] = time.perf_counter() - t0
+        return _LOADED[kind]
+
+
+def load_kernels(problems=None) -> float:
+    """Load the compiled kernels before the first time-critical solve of a process.
+
+    ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load; ``None``
+    loads every kind. Returns the seconds spent. ``solve`` does this by itself before its clock
+    starts, so calling it is needed only to take that time at start-up rather than in the first
+    solve (30–75 ms a kind once numba's cache exists; on a fresh install it compiles, tens of
+    seconds a kind)."""
+    if problems is None:
+        kinds = [(b, t, c) for b in ("per-axis", "p-norm") for t in ("full", "pointing") for c in (False, True)]
+    else:
+        items = problems if isinstance(problems, (list, tuple)) else [problems]
+        for p in items:
+            if not isinstance(p, (SlewProblem, dict)):
+                raise ValueError(f"problems: expected a SlewProblem, a problem dict or a list of them, "
+                                 f"got {type(p).__name__} {p!r:.60}")
+        kinds = [problem_kind(SlewProblem.from_dict(p)) for p in items]
+    total = 0.0
+    for kind in dict.fromkeys(kinds):
+        prob = _representatives(kind)[0]
+        total += ensure_kernels(prob)
+    return total
