@@ -53,6 +53,14 @@ def test_no_time_left_gives_the_replay_estimate():
     settle_tf_tol(sol, 0.0)
     assert math.isfinite(sol.tf_tol) and sol.tf_tol > 0
     assert sol.nit == nit
+    # and says that it is that estimate, which may understate the discretisation error
+    assert "boundary-miss estimate" in sol.message
+
+
+def test_a_settled_tolerance_says_nothing_of_an_estimate(touch_pair):
+    _, later = touch_pair
+    settle_tf_tol(later, 5.0)
+    assert "boundary-miss estimate" not in later.message
 
 
 def test_without_cones_nothing_is_deferred():
