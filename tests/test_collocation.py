@@ -259,6 +259,11 @@ def test_cones_that_block_every_path():
     assert cones_block_every_path(p)
     with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate the start and target"):
         solve_collocation(p)
+    # solve says so before it loads anything or starts its clock, whatever the method
+    from solvers import solve
+    for method in ("auto", "indirect", "collocation"):
+        with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate the start and target"):
+            solve(p, method=method, time_budget=1e-3)
     # the same belt with 2° gaps is passable
     open_belt = [Cone(c.axis, half_angle_deg=29) for c in belt]
     assert not cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=open_belt))
