@@ -75,8 +75,15 @@ FALLBACKS = (None, "eigenaxis")
 FALLBACK_RESERVE = 0.025
 FALLBACK_RESERVE_SHARE = 0.5
 # angle steps of the fallback's profile for a p-norm bound with a gyroscopic term (the planner's
-# default, 4,000, takes 20-100 ms; 1,000 steps 12-18 ms, at most 5e-5 slower)
+# default, 4,000, takes 20-100 ms; 1,000 steps 12-18 ms, at most 1.1e-4 slower on 80 random bodies)
 FALLBACK_GRID_PNORM_GYRO = 1000
+# where less time is left than the default profile takes, the fallback's grid shrinks to what
+# fits (planning time measured 2026-11-24: per-axis 0.9 ms + 1.0 µs a step, p-norm with a
+# gyroscopic term 3 ms + 10 µs a step; the costs below are 1.5× that), down to these floors
+# (per-axis 1,000 steps: at most 2.9e-4 slower than 16,000 on 40 random bodies; p-norm 250
+# steps: at most 5.8e-4 slower than 4,000)
+FALLBACK_STEP_COST = {"per-axis": (1.5e-3, 1.5e-6), "pnorm-gyro": (4.5e-3, 1.5e-5)}
+FALLBACK_GRID_FLOOR = {"per-axis": 1000, "pnorm-gyro": 250}
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
 # converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
@@ -327,12 +334,13 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
     planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
-    iteration); below about 50 ms the fallback's planning (10-25 ms) outgrows that half (README:
-    A hard time budget). The budget's clock starts after the compiled kernels of the problem's
+    iteration); where less is left than its default profile takes, the fallback plans on fewer
+    angle steps (``_fallback_grid``; README: A hard time budget). The budget's clock starts after the compiled kernels of the problem's
     kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
     ``kernel_load_time``; ``solvers.load_kernels`` does it at start-up), and collocation builds
-    no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with a gyroscopic term the fallback's profile has 1,000 angle
-    steps (``FALLBACK_GRID_PNORM_GYRO``; at most 5e-5 slower than ``method="eigenaxis"``'s 4,000).
+    no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with
+    a gyroscopic term the fallback's profile has at most 1,000 angle steps
+    (``FALLBACK_GRID_PNORM_GYRO``; at most 1.1e-4 slower than ``method="eigenaxis"``'s 4,000).
     The route's message says why the fallback was needed.
     ``local_optimum_check`` (default True): ``auto`` runs the collocation route as well when the
     learned guess's extremal is likely a local optimum (more than 1.5 % above the model's
@@ -491,7 +499,8 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
             sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     if fallback == "eigenaxis" and not sol.success:
-        sol = _eigenaxis_fallback(prob, sol, t0, reserved)
+        end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf
+        sol = _eigenaxis_fallback(prob, sol, t0, reserved, end)
     return sol
 
 
@@ -506,14 +515,26 @@ def _fallback_inapplicable(prob):
     return None if prob.is_rest_to_rest else "non-zero rates"
 
 
-def _pnorm_fallback_grid(prob):
-    """The fallback's grid for a p-norm bound: ``FALLBACK_GRID_PNORM_GYRO`` with a gyroscopic
-    term, else the planner's default (``None``; the profile is then bang-coast-bang)."""
+def _fallback_grid(prob, left=math.inf):
+    """The fallback profile's angle steps, ``left`` seconds before the budget ends: the planner's
+    default for a per-axis bound (``N_GRID``) and ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound
+    with a gyroscopic term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``,
+    not below ``FALLBACK_GRID_FLOOR``); ``None`` (the planner's default) for a p-norm bound without
+    one (the profile is then bang-coast-bang)."""
     from .eigenaxis import _checked, _phase_plane
-    return FALLBACK_GRID_PNORM_GYRO if np.any(_phase_plane(_checked(prob))[3]) else None
+    from .eigenaxis_answer import N_GRID
+    if math.isinf(prob.torque_norm):
+        kind, grid = "per-axis", N_GRID
+    elif np.any(_phase_plane(_checked(prob))[3]):
+        kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
+    else:
+        return None
+    fixed, step = FALLBACK_STEP_COST[kind]
+    fits = int((left - fixed) / step) if math.isfinite(left) else grid
+    return max(FALLBACK_GRID_FLOOR[kind], min(grid, fits))
 
 
-def _eigenaxis_fallback(prob, sol, t0, reserved=0.0) -> SlewSolution:
+def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSolution:
     """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
     ran out, or nothing converged), the eigenaxis slew of a rest-to-rest full-attitude problem
     without cones (``eigenaxis_answer``: what most spacecraft fly today, verified by its replay;
@@ -526,7 +547,7 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0) -> SlewSolution:
         return sol
     from .eigenaxis_answer import eigenaxis_answer
     try:
-        eig = eigenaxis_answer(prob, n_grid=None if math.isinf(prob.torque_norm) else _pnorm_fallback_grid(prob))
+        eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
     except ValueError as e:          # a zero slew: nothing to fly
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {e}.)"
         return sol

@@ -1,5 +1,6 @@
 """``fallback="eigenaxis"``: a flyable answer where the time-optimal route gives no verified one."""
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,32 @@ def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, 
     solvers.solve(prob.replace(omega0=[0.01, 0.0, 0.0]), method="indirect", warm_start=None, time_budget=budget,
                   fallback="eigenaxis")
     assert seen["time_budget"] == budget
+
+
+@pytest.mark.parametrize("torque_norm", [np.inf, 2.0])
+def test_a_short_budget_gets_a_coarser_fallback_that_fits(monkeypatch, torque_norm):
+    """The route used its whole budget: the 5 ms kept at a 10 ms budget cannot pay for the
+    default profile (per-axis 16,000 steps, 12-20 ms), so the fallback plans on fewer steps, not
+    below the floor; a coarser profile is flyable and never faster than the fine one."""
+    import re
+    from solvers import api
+    from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
+
+    def route(prob, method, guess, **options):
+        time.sleep(options["time_budget"])
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                            method="indirect", problem=prob, route="stub")
+
+    monkeypatch.setattr(api, "_solve_indirect", route)
+    prob = _r3().replace(inertia=[0.5, 0.8, 1.0], torque_norm=torque_norm)
+    sol = solvers.solve(prob, method="indirect", warm_start=None, time_budget=0.01, fallback="eigenaxis")
+    assert sol.success and sol.method == "eigenaxis"
+    n = int(re.search(r"profile, (\d+) steps\)", sol.message).group(1))
+    kind = "per-axis" if np.isinf(torque_norm) else "pnorm-gyro"
+    default = 16000 if kind == "per-axis" else api.FALLBACK_GRID_PNORM_GYRO
+    assert api.FALLBACK_GRID_FLOOR[kind] <= n < default
+    fine = eigenaxis_answer(prob).tf
+    assert fine * (1.0 - 1e-12) <= sol.tf <= fine * (1.0 + 1e-3)
+    # with time to spare, the default grid
+    assert api._fallback_grid(prob) == default and api._fallback_grid(prob, 1.0) == default
+    assert api._fallback_grid(prob, 0.0) == api.FALLBACK_GRID_FLOOR[kind]
