@@ -110,3 +110,15 @@ def test_load_kernels_checks_its_input():
         solvers.load_kernels("full-attitude")
     with pytest.raises(ValueError, match="inertia"):
         solvers.load_kernels([{"inertia": [1, -1, 1], "qf": [0, 1, 0, 0]}])
+
+
+def test_evaluation_workers_load_their_familys_kernels():
+    """``slew evaluate`` times the guesses by calling the routes directly (not through ``solve``):
+    its workers load the family's kernels when they start, so that a worker's first problem does
+    not load them inside its warm budget."""
+    code = ("import training.warmstart.evaluate as ev; from solvers import kernel_loading as k; "
+            "print(sorted(k._LOADED)); ev._init(None, None, 'pointing-cones', 5); print(sorted(k._LOADED))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1200, cwd=str(ROOT))
+    assert out.returncode == 0, out.stderr[-3000:]
+    before, after = out.stdout.strip().splitlines()[-2:]
+    assert before == "[]" and "('per-axis', 'pointing', True)" in after

@@ -61,10 +61,16 @@ def _model(model_path):
     return warmstart.load_model(model_path)
 
 
-def _init(model_path, nn_path):
-    from solvers import warmstart
+def _init(model_path, nn_path, family=None, seed=0):
+    from solvers import load_kernels, warmstart
     _W["model"] = _model(model_path)
     _W["nn"] = warmstart.load_model(nn_path) if nn_path else None
+    if family is not None:
+        # the guesses are timed by calling the routes directly, not through solve(), which would
+        # load the compiled kernels before its clock: a worker's first problem would load them
+        # inside its warm budget (0.2 s with cones) and fail for it
+        from training.generate import GenerationSpec, problem_for
+        load_kernels(problem_for(GenerationSpec(family, seed=seed), 0))
 
 
 def _run_one(args):
@@ -248,7 +254,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         from tqdm import tqdm
         bar = tqdm(total=n, desc="slew evaluate", unit="problem")
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(workers, initializer=_init, initargs=(model_path, nn_path)) as ex:
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(model_path, nn_path, family, seed)) as ex:
         for res in ex.map(_run_one, jobs, chunksize=4):
             rows += res
             if bar is not None:
