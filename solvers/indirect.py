@@ -71,15 +71,15 @@ def _event_check(bvp, z, T, structure, tol=1e-8, n_steps=DENSE_STEPS):
 
 
 def solve_structure(bvp, z, T, structure, nit=0, nfev=0, route="switch-time", max_rounds=3,
-                    tol=1e-12, deadline=math.inf):
+                    tol=1e-12, deadline=math.inf, stall=None):
     """Exact bang-bang solve for a structure, then correct the structure until the
     event-driven propagation reproduces it. ``deadline`` (``time.perf_counter()`` time):
-    checked before each Newton iteration."""
+    checked before each Newton iteration; ``stall``: ``solve_switch_times``'s."""
     bvp.set_mode("bang")
     st = structure
     last = None
     for _ in range(max_rounds):
-        sr = solve_switch_times(bvp, z, st, T, tol=tol, deadline=deadline)
+        sr = solve_switch_times(bvp, z, st, T, tol=tol, deadline=deadline, stall=stall)
         nit += sr.nit
         nfev += sr.nfev
         last = sr

@@ -104,19 +104,21 @@ def _residual(bvp, z, times, T, st, want_jac):
 
 
 def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter=30,
-                       max_step=0.3, coarse_rtol=1e-9, deadline=math.inf):
+                       max_step=0.3, coarse_rtol=1e-9, deadline=math.inf, stall=None):
     """Newton on (costates, switch times, final time) for a fixed bang-bang structure.
 
     Iterates first at the integrator tolerance ``coarse_rtol`` to a residual of about
     ``1e3 · coarse_rtol`` (most iterations, cheap), then at the problem's own tolerance
     to ``tol``. ``deadline`` (``time.perf_counter()`` time): checked before each iteration.
+    ``stall``: ``(k, ratio)``, stop (as failed) once ``k`` iterations have not brought the
+    residual below ``ratio`` times the first one (``TEMPLATE_STALL``).
     """
     if coarse_rtol is not None and coarse_rtol > bvp.rtol:
         fine = (bvp.rtol, bvp.atol)
         bvp.rtol, bvp.atol = coarse_rtol, coarse_rtol
         try:
             first = _solve_switch_times(bvp, z0, structure, T0, tol=1e3 * coarse_rtol, max_iter=max_iter,
-                                        max_step=max_step, deadline=deadline)
+                                        max_step=max_step, deadline=deadline, stall=stall)
         finally:
             bvp.rtol, bvp.atol = fine
         if not first.success:
@@ -132,10 +134,11 @@ def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter
         again.nfev += first.nfev
         return again
     return _solve_switch_times(bvp, z0, structure, T0, tol=tol, max_iter=max_iter, max_step=max_step,
-                               deadline=deadline)
+                               deadline=deadline, stall=stall)
 
 
-def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max_step, deadline=math.inf):
+def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max_step, deadline=math.inf,
+                        stall=None):
     st = structure
     n = st.n
     x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)]])
@@ -164,6 +167,9 @@ def _solve_switch_times(bvp, z0, structure: Structure, T0, *, tol, max_iter, max
             break
         if time.perf_counter() > deadline:
             msg = "the time budget ran out"
+            break
+        if stall is not None and nit == stall[0] and rn > stall[1] * hist[0]:
+            msg = f"stalled (residual {rn / hist[0]:.2g} of the first after {nit} iterations)"
             break
         nit += 1
         dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]

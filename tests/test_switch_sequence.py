@@ -166,3 +166,31 @@ def test_the_compiled_sequence_end_matches_the_python_loop():
                 assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
     bvp, z, times, T, st = next(_cases())
     assert propagate_sequence(bvp, times, st.axes, st.signs0, float("nan"), bvp.initial(z)[0], True) is None
+
+
+def test_a_stalled_template_stops_early_and_a_converging_one_does_not():
+    """``stall=(10, 0.1)`` (``api.TEMPLATE_STALL``): a structure template whose residual is still
+    above 0.1 of its first after 10 iterations stops there, as failed, instead of running to the
+    line search's failure or 30 iterations; the templates that converge converge as before."""
+    import json
+    from pathlib import Path
+    from solvers.api import TEMPLATE_STALL
+    from solvers.guesses import eigenaxis_guess, structure_templates
+    r3 = Path(__file__).resolve().parent.parent / "examples" / "r3_seed_report_per_axis.json"
+    p = SlewProblem.from_dict(json.loads(r3.read_text())).replace(inertia=[0.5, 0.8, 1.0])
+    bvp = AttitudeBVP(p)
+    bvp.set_mode("bang")
+    z0, T0 = eigenaxis_guess(bvp).to_nondim(bvp)
+    stalled = converged = 0
+    for zt, Tt, (s0, ax, tt), _ in structure_templates(bvp, z0, T0, np.random.default_rng(0)):
+        st = Structure(s0, ax, tt)
+        a = solve_switch_times(bvp, zt, st, Tt, stall=TEMPLATE_STALL)
+        b = solve_switch_times(bvp, zt, st, Tt)
+        if b.success:
+            converged += 1
+            assert a.success and a.nit == b.nit and a.T == b.T
+        elif a.message.startswith("stalled"):
+            stalled += 1
+            assert a.nit == 10 < b.nit and not a.success
+            assert a.history[10] > 0.1 * a.history[0]
+    assert converged >= 3 and stalled >= 6
