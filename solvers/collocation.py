@@ -605,9 +605,14 @@ class NoTimeToBuild(Exception):
 
 
 def build_estimate(N, n_cones) -> float:
-    """Seconds to build an NLP of ``N`` intervals and ``n_cones`` cones: measured 2026-11-24,
-    0.055 s (N = 10) to 0.41 s (N = 120) without cones, 1.15 s with 3 cones at N = 120."""
-    return 0.02 + 3.3e-3 * N * (1.0 + 0.6 * n_cones)
+    """Seconds to build an NLP of ``N`` intervals and ``n_cones`` cones, with a margin: measured
+    2026-11-24, 0.055 s (N = 10) to 0.41 s (N = 120) without cones, 1.15 s with 3 cones at
+    N = 120; a review's 92 builds (rate limits and p-norm bounds among them) took 0.67–1.35 times
+    the formula without the margin."""
+    return BUILD_MARGIN * (0.02 + 3.3e-3 * N * (1.0 + 0.6 * n_cones))
+
+
+BUILD_MARGIN = 1.4
 
 
 def _template(N, pointing, n_cones, p, rate, tol, max_iter, verbose, deadline=math.inf) -> _Template:
@@ -751,7 +756,11 @@ class _NLP:
         tpl.deadline.at = deadline
         solver = tpl.solver
         args = dict(x0=w0, p=self.params(delta), lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
-        if warm is not None and warm.lam_x is not None:
+        # (the warm-started solver is built at its first use: not when the budget left cannot pay
+        # for it; the cold solver then starts from the same point)
+        left = deadline - time.perf_counter()
+        if warm is not None and warm.lam_x is not None and (
+                tpl._warm is not None or left > build_estimate(self.N, len(self.sc.prob.cones))):
             solver = tpl.warm_solver
             args.update(x0=warm.w, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
         r = solver(**args)
@@ -1545,6 +1554,39 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
     return sol
 
 
+def _grids(N, cones, coarse):
+    """``(Nc, N_half)``: the starts' coarse grid (None without ``coarse``) and the grid of the
+    ``N / 2`` comparison that gives ``tf_tol`` (None where the starts' grid gives it)."""
+    Nc = None
+    if coarse and N >= 4:
+        Nc = max(min(10, N // 2), N // COARSE_DIVISOR_CONES) if cones else max(2, N // 2)
+    # tf_tol is the change from N / 2 intervals: with a coarser starts' grid, an N / 2 solve from
+    # the answer gives it
+    # (not when N / 2 is barely finer than the starts' grid: then the starts' answer gives it)
+    N_half = max(2, N // 2) if Nc is not None and 2 * Nc <= max(2, N // 2) else None
+    return Nc, N_half
+
+
+def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000) -> float:
+    """Build the NLPs that a collocation solve of ``problem`` on one mesh of ``n_intervals``
+    (default: the default mesh) uses: the starts' coarse grid, the mesh, the ``N / 2`` comparison
+    grid. Seconds spent (0 where they are built already). ``solve`` calls it before its clock
+    starts for pointing targets and cones, whose default route begins with collocation: building
+    an NLP cannot be interrupted (0.05–1.2 s the first time in a process)."""
+    prob = SlewProblem.from_dict(problem)
+    N = _check_intervals(DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
+                         if n_intervals is None else n_intervals)
+    Nc, N_half = _grids(N, bool(prob.cones), True)
+    sc = _Scaled.of(prob)
+    coarse_tol, coarse_iter = max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER)
+    t0 = time.perf_counter()
+    for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
+        if n is not None:
+            _template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl), int(mi),
+                      False)
+    return time.perf_counter() - t0
+
+
 def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, max_iter, time_budget, verbose,
                             n_starts, seed, coarse, mesh, tols, evidence=None, extra_starts=(),
                             defer_tf_tol=False) -> SlewSolution:
@@ -1602,13 +1644,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     nit = nfev = 0
     failures = []
     budget_hit = False
-    Nc = None
-    if coarse and N >= 4:
-        Nc = max(min(10, N // 2), N // COARSE_DIVISOR_CONES) if prob.cones else max(2, N // 2)
-    # tf_tol is the change from N / 2 intervals: with a coarser starts' grid, an N / 2 solve from
-    # the answer gives it
-    # (not when N / 2 is barely finer than the starts' grid: then the starts' answer gives it)
-    N_half = max(2, N // 2) if Nc is not None and 2 * Nc <= max(2, N // 2) else None
+    Nc, N_half = _grids(N, bool(prob.cones), coarse)
     # ---- stage 1: every start (on the coarse grid when there is one)
     common = dict(method="collocation", problem=prob, n_candidates=0)
     try:

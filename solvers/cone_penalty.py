@@ -79,6 +79,7 @@ def load_kernels() -> None:
     cp.penalty_value(y, pen)
     cp.penalty_rhs_into(y, pen, np.zeros(NY))
     ones = np.ones(3)
+    af.hamiltonian(y, ones, ones.copy(), af.MODE_TANH, 0.0, 0.1, ones.copy())
     u = af.control_batch(np.tile(y, (2, 1)), ones, ones, af.MODE_TANH, 0.0, 0.1, np.ones((2, 3)))
     inertia = np.ones(3)
     inertia.flags.writeable = False      # as a SlewProblem's arrays
@@ -236,8 +237,19 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
                             nit, nfev, time.perf_counter() - t_start, method="indirect",
                             route="cone penalty homotopy: " + "; ".join(log), guess="collocation", problem=problem)
     eps, w = reached
+
+    def out_of_time(where):
+        # a stage's iterate is not an answer until the final polish and the verification have
+        # run: none after the deadline (the certified clearance alone takes 0.05-0.1 s)
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
+                            f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} Penalty homotopy: the time budget ran out "
+                            f"{where} (stages: {'; '.join(log)}).", nit, nfev, time.perf_counter() - t_start,
+                            method="indirect", route="cone penalty homotopy: " + "; ".join(log), guess="collocation",
+                            problem=problem)
     sins = np.array([math.sin(c.half_angle) for c in problem.cones])
     for _ in range(MAX_BACKOFF_ROUNDS):
+        if time.perf_counter() > deadline:
+            break
         clear = _clearances(bvp, problem, z, T, nodes)
         if clear is None:
             break
@@ -257,11 +269,17 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
             bvp.set_penalty(backoff=backoff)
             break
         backoff, z, T, nodes = trial, r.p, r.T, r.nodes
+    if time.perf_counter() > deadline:
+        return out_of_time(f"after the stage ε={eps:g}, w={w:g}, before the final polish")
     r = shoot(eps, w, backoff, z, T, nodes, final=True)
     if r.success:
         z, T, nodes = r.p, r.T, r.nodes
+    elif r.status == STATUS_DEADLINE:
+        return out_of_time("in the final polish")
     else:
         log.append("final polish failed: the answer is the last stage's")
+    if time.perf_counter() > deadline:
+        return out_of_time("before the verification")
     sol = _verified_solution(bvp, problem, seed, z, T, nodes, tols)
     sol.nit, sol.nfev = nit, nfev
     back_rad = [f"{b / s:.3g}" for b, s in zip(backoff, sins)]

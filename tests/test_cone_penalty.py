@@ -173,3 +173,28 @@ def test_penalty_route_keeps_its_budget():
     sol = solve_penalised(p, seed, time_budget=2e-3)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "cut by the time budget" in sol.message
+
+
+def test_penalty_route_verifies_nothing_after_its_deadline(monkeypatch):
+    """A stage converged, then the budget ran out (here inside the clearance certification): no
+    final polish and no verification after the deadline, status 3 and where it stopped."""
+    import time
+    import solvers.cone_penalty as cpr
+    from solvers.solution import STATUS_BUDGET_EXHAUSTED
+    p = melton(45.0, -90.0)
+    seed = solve(p, method="collocation")
+    real = cpr._clearances
+    calls = []
+
+    def slow(*a, **k):
+        calls.append(1)
+        out = real(*a, **k)
+        time.sleep(3.0)          # past the 2.5 s budget
+        return out
+    monkeypatch.setattr(cpr, "_clearances", slow)
+    t0 = time.perf_counter()
+    sol = cpr.solve_penalised(p, seed, time_budget=2.5)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "before the final polish" in sol.message and "ok (" in sol.message
+    assert sol.verification == {} and len(calls) == 1
+    assert time.perf_counter() - t0 < 3.0 + 2.5

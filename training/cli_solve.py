@@ -293,8 +293,8 @@ def _run_single(args, opts):
     lines = summary_lines(sol, prob)
     again = []
     if args.repeat and sol.success:
-        # the first call in a process also compiles or loads the kernels; one repeat shows
-        # whether the rest are quick enough to be worth timing
+        # (the first call's kernels and model files load before its clock: kernel_load_time);
+        # one repeat shows whether the rest are quick enough to be worth timing
         again.append(solve(prob, method=args.method, **opts))
         if again[0].wall_time < 1.0:
             again += [solve(prob, method=args.method, **opts) for _ in range(args.repeat - 1)]
