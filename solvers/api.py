@@ -1341,7 +1341,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
         col.wall_time = spent()
         return col
     if budget - spent() <= 0.0:
-        # the budget is spent: no multi-start (its first candidate always runs, past the budget)
+        # the budget is spent: no multi-start (its first candidate would start: the eigenaxis
+        # baseline and at least one iteration after the budget)
         col.status = STATUS_BUDGET_EXHAUSTED
         if not col.message.startswith(STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]):
             col.message = f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} Collocation: {col.message}"
