@@ -1574,8 +1574,9 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000) -> float:
     starts for pointing targets and cones, whose default route begins with collocation: building
     an NLP cannot be interrupted (0.05–1.2 s the first time in a process)."""
     prob = SlewProblem.from_dict(problem)
-    N = _check_intervals(DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
-                         if n_intervals is None else n_intervals)
+    if n_intervals is None:
+        n_intervals = DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
+    N = _check_intervals(n_intervals)
     Nc, N_half = _grids(N, bool(prob.cones), True)
     sc = _Scaled.of(prob)
     coarse_tol, coarse_iter = max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER)

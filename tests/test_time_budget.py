@@ -183,3 +183,17 @@ def test_no_nlp_is_built_that_the_budget_cannot_pay_for():
     # with the time, the same NLP is built and solved
     assert solve_collocation(prob, n_intervals=key_n, coarse=False, time_budget=60.0).success
     assert any(k[0] == key_n for k in collocation._CACHE)
+
+
+def test_solve_builds_the_nlps_of_the_mesh_it_is_given_before_its_clock():
+    """A cone problem's collocation NLPs are built before the clock: those of the default mesh, or
+    of the ``n_intervals`` given in the ``collocation`` options (the coarse grid of the starts,
+    the mesh, the N / 2 comparison)."""
+    from solvers import collocation
+    prob = TOUCH.replace(cones=list(TOUCH.cones)[:2])
+    assert collocation.prebuild_nlps(prob, 44) >= 0.0
+    sizes = {k[0] for k in collocation._CACHE if k[2] == 2 and k[1]}
+    assert {10, 44, 22} <= sizes
+    sol = solvers.solve(prob, time_budget=30.0, collocation={"n_intervals": 46})
+    assert {10, 46, 23} <= {k[0] for k in collocation._CACHE if k[2] == 2 and k[1]}
+    assert sol.success
