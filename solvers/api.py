@@ -78,16 +78,20 @@ FALLBACK_RESERVE_SHARE = 0.5
 # default, 4,000, takes 20-100 ms; 1,000 steps 12-18 ms, at most 1.1e-4 slower on 80 random problems: 40 bodies, p = 1.5 and 2)
 FALLBACK_GRID_PNORM_GYRO = 1000
 # where less time is left than the default profile takes, the fallback's grid shrinks to what
-# fits (planning time measured 2026-11-24: per-axis 0.9 ms + 1.0 µs a step, p-norm with a
-# gyroscopic term 3 ms + 10 µs a step; the costs below are 1.5× that), down to these floors
-# (per-axis 1,000 steps: at most 2.9e-4 slower than 16,000 on 40 random bodies; p-norm 250
-# steps: at most 5.8e-4 slower than 4,000)
-FALLBACK_STEP_COST = {"per-axis": (1.5e-3, 1.5e-6), "pnorm-gyro": (4.5e-3, 1.5e-5)}
-FALLBACK_GRID_FLOOR = {"per-axis": 1000, "pnorm-gyro": 250}
+# fits (planning time measured 2026-11-24: without a p-norm gyroscopic term 0.9 ms + 1.0 µs a
+# step, with one 3 ms + 10 µs a step; the costs below are 1.5× that), down to these floors
+# (per-axis 1,000 steps: at most 3.4e-4 slower than 16,000 on two samples of random bodies, 40
+# and a review's; p-norm with a gyroscopic term, 250 steps: at most 6.1e-4 slower than 4,000; a
+# p-norm profile without one is exact on any grid). Below a few milliseconds the floors take
+# longer than what is left: 0.8-1.8 ms late (per-axis) at budgets of 0.1-1 ms
+FALLBACK_STEP_COST = {"no-gyro": (1.5e-3, 1.5e-6), "pnorm-gyro": (4.5e-3, 1.5e-5)}
+FALLBACK_GRID_FLOOR = {"no-gyro": 1000, "pnorm-gyro": 250}
 # a structure template's switch-time Newton stops when 10 iterations have not brought its residual
-# below 0.1 of the first: on 100 random slews (seeds 1 and 2 of bench_solver), 24 of 1,077 template
-# attempts converged, none of them that slowly, and the failures spent 44 % of their iterations
-# past that point (about 40 % of the classical route's time went to failing templates)
+# below 0.1 of the first: on 100 random slews (seeds 1 and 2 of bench_solver, where the rule was
+# chosen), 24 of 1,077 template attempts converged, none of them that slowly, and the failures
+# spent 44 % of their iterations past that point (about 40 % of the classical route's time went to
+# failing templates). On held-out seeds 4 and 5 (a review, 50 slews) it cut 4 of 423 stalled
+# templates that would have converged, all to local extremals 15-95 % slower: no answer changed
 TEMPLATE_STALL = (10, 0.1)
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 # a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
@@ -342,8 +346,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
     iteration); where less is left than its default profile takes, the fallback plans on fewer
-    angle steps (``_fallback_grid``; README: A hard time budget). The budget's clock starts after the compiled kernels of the problem's
-    kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
+    angle steps (``_fallback_grid``), down to a floor that is late below a few milliseconds of
+    budget (README: A hard time budget). The budget's clock starts after the compiled kernels of
+    the problem's kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
     ``kernel_load_time``; ``solvers.load_kernels`` does it at start-up), and collocation builds
     no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with
     a gyroscopic term the fallback's profile has at most 1,000 angle steps
@@ -430,7 +435,8 @@ def _prebuild_nlps(prob, col_opts) -> float:
     spent = 0.0
     try:
         for n in meshes:
-            spent += prebuild_nlps(prob, n, tol=col_opts.get("tol", 1e-8), max_iter=col_opts.get("max_iter", 3000))
+            spent += prebuild_nlps(prob, n, tol=col_opts.get("tol", 1e-8), max_iter=col_opts.get("max_iter", 3000),
+                                   coarse=col_opts.get("coarse", True), verbose=col_opts.get("verbose", False))
     except (ValueError, TypeError):
         pass
     return spent
@@ -542,18 +548,15 @@ def _fallback_inapplicable(prob):
 
 def _fallback_grid(prob, left=math.inf):
     """The fallback profile's angle steps, ``left`` seconds before the budget ends: the planner's
-    default for a per-axis bound (``N_GRID``) and ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound
-    with a gyroscopic term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``,
-    not below ``FALLBACK_GRID_FLOOR``); ``None`` (the planner's default) for a p-norm bound without
-    one (the profile is then bang-coast-bang)."""
+    default (``N_GRID``), or ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound with a gyroscopic
+    term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``, not below
+    ``FALLBACK_GRID_FLOOR``)."""
     from .eigenaxis import _checked, _phase_plane
     from .eigenaxis_answer import N_GRID
-    if math.isinf(prob.torque_norm):
-        kind, grid = "per-axis", N_GRID
-    elif np.any(_phase_plane(_checked(prob))[3]):
+    if not math.isinf(prob.torque_norm) and np.any(_phase_plane(_checked(prob))[3]):
         kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
-    else:
-        return None
+    else:     # (a p-norm profile without a gyroscopic term is bang-coast-bang, exact on any grid)
+        kind, grid = "no-gyro", N_GRID
     fixed, step = FALLBACK_STEP_COST[kind]
     fits = int((left - fixed) / step) if math.isfinite(left) else grid
     return max(FALLBACK_GRID_FLOOR[kind], min(grid, fits))

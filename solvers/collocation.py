@@ -299,11 +299,12 @@ def cones_block_every_path(problem, resolution_deg=0.5):
     key = (np.asarray(problem.start_direction, float).tobytes(), np.asarray(problem.target_direction, float).tobytes(),
            tuple((np.asarray(c.axis, float).tobytes(), float(c.half_angle)) for c in problem.cones),
            float(resolution_deg))
-    if key not in _SEPARATION:
-        _SEPARATION[key] = _grid_separates(problem, resolution_deg)
-        while len(_SEPARATION) > 256:
-            del _SEPARATION[next(iter(_SEPARATION))]
-    return _SEPARATION[key]
+    blocked = _SEPARATION.get(key)
+    if blocked is None:
+        blocked = _SEPARATION[key] = _grid_separates(problem, resolution_deg)
+        for old in list(_SEPARATION)[:-256]:      # (pop: another thread may evict the same key)
+            _SEPARATION.pop(old, None)
+    return blocked
 
 
 _SEPARATION: dict = {}
@@ -1422,6 +1423,14 @@ def _mesh_limited(sol) -> bool:
     return sol.status == STATUS_VERIFICATION_FAILED and bool(failed) and failed <= _MESH_CHECKS
 
 
+# where the comparison solve that measures tf_tol gave nothing (no time to run it or to build its
+# NLP, or an answer in another basin), tf_tol is the replay's boundary miss, which can be far
+# smaller than the discretisation error (seen: 5.8e-7 and 7.1e-7 against 3.5e-4 and 2.3e-4)
+TF_TOL_ESTIMATE_NOTE = (" tf_tol is the replay's boundary-miss estimate: the comparison solve that measures the "
+                        "discretisation error gave nothing (no time for it, or an answer in another basin), and "
+                        "the estimate may understate that error.")
+
+
 def settle_tf_tol(sol, budget: float = 5.0):
     """Run the ``N / 2`` comparison solve that ``defer_tf_tol`` skipped and set ``sol.tf_tol``
     (its work added to ``nit``, ``nfev`` and ``wall_time``); nothing if none is pending."""
@@ -1432,10 +1441,7 @@ def settle_tf_tol(sol, budget: float = 5.0):
     sol._tf_tol_pending = None
     sol.tf_tol, n1, n2, measured = pending(float(budget))
     if not measured:
-        # no time left for the comparison: the replay's boundary miss, which can be far smaller
-        # than the discretisation error the comparison measures (seen: 5.8e-7 against 3.5e-4)
-        sol.message += (" tf_tol is the replay's boundary-miss estimate, not the N/2 comparison (no time "
-                        "left for it): it may understate the discretisation error.")
+        sol.message += TF_TOL_ESTIMATE_NOTE
     sol.nit += n1
     sol.nfev += n2
     sol.wall_time += time.perf_counter() - t0
@@ -1567,7 +1573,7 @@ def _grids(N, cones, coarse):
     return Nc, N_half
 
 
-def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000) -> float:
+def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=True, verbose=False) -> float:
     """Build the NLPs that a collocation solve of ``problem`` on one mesh of ``n_intervals``
     (default: the default mesh) uses: the starts' coarse grid, the mesh, the ``N / 2`` comparison
     grid. Seconds spent (0 where they are built already). ``solve`` calls it before its clock
@@ -1577,14 +1583,14 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000) -> float:
     if n_intervals is None:
         n_intervals = DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
     N = _check_intervals(n_intervals)
-    Nc, N_half = _grids(N, bool(prob.cones), True)
+    Nc, N_half = _grids(N, bool(prob.cones), coarse)
     sc = _Scaled.of(prob)
     coarse_tol, coarse_iter = max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER)
     t0 = time.perf_counter()
     for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
         if n is not None:
             _template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl), int(mi),
-                      False)
+                      bool(verbose))
     return time.perf_counter() - t0
 
 
@@ -1779,7 +1785,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         ok = r2.success and (N_half is None or abs(run.T - r2.T) <= 1e-2 * run.T)
         return (r2.T if ok else math.nan), r2.nit, r2.nfev
 
-    deferred = False
+    deferred = compared_in_vain = False
     if N_half is not None or (from_coarse and abs(best.T - Tc) > 1e-2 * best.T):
         if N_half is not None:
             Tc = math.nan
@@ -1787,6 +1793,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         if not deferred:
             Tc, n1, n2 = compare(best, deadline)
             nit, nfev = nit + n1, nfev + n2
+            compared_in_vain = not math.isfinite(Tc)
     fields, checks = _post(sc, best, Tc, tols_all, rep)
     if deferred:    # (Tc is NaN here: _post gave the boundary miss's estimate, kept for settle)
         miss_tol, fields["tf_tol"] = fields["tf_tol"], math.nan
@@ -1849,14 +1856,14 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if len(cands) > 1:
         msg += f" Best of {len(cands)} refined local optima (final times {cands})."
     msg += local
+    if compared_in_vain:
+        msg += TF_TOL_ESTIMATE_NOTE
     if failures:
         msg += " Runs that failed: " + "; ".join(failures)
     sol = SlewSolution(True, STATUS_SUCCESS, msg, **kw)
     if deferred:
         def settle(budget):
-            dl = time.perf_counter() + budget
-            T_cmp, n1, n2 = compare(best, dl)
-            measured = math.isfinite(T_cmp) or time.perf_counter() < dl   # (NaN in time: another basin)
-            return _tf_tol(best.T, sc.tau, T_cmp, miss_tol), n1, n2, measured
+            T_cmp, n1, n2 = compare(best, time.perf_counter() + budget)
+            return _tf_tol(best.T, sc.tau, T_cmp, miss_tol), n1, n2, math.isfinite(T_cmp)
         sol._tf_tol_pending = settle
     return sol

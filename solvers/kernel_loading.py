@@ -91,11 +91,14 @@ def ensure_kernels(problem: SlewProblem) -> float:
     kind = problem_kind(problem)
     if kind in _LOADED:
         return 0.0
-    # one thread loads; another that needs the same kind waits for it (the lock), and the
-    # loading thread's own solves inside the loading return at once
+    # one thread loads; another that needs the same kind waits for it (the lock: the time it
+    # waited is its loading time), and the loading thread's own solves inside return at once
+    t_wait = time.perf_counter()
     with _LOCK:
-        if kind in _LOADED or _LOADING.get(kind) == threading.get_ident():
+        if _LOADING.get(kind) == threading.get_ident():
             return 0.0
+        if kind in _LOADED:
+            return time.perf_counter() - t_wait
         _LOADING[kind] = threading.get_ident()
         t0 = time.perf_counter()
         try:

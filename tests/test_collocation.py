@@ -253,17 +253,23 @@ def test_bad_problem():
         solve_collocation(SlewProblem([1, 1, 1], qf=[1, 0, 0, 0]))
 
 
-def test_cones_that_block_every_path():
+def test_cones_that_block_every_path(monkeypatch):
     belt = [Cone([0, math.cos(a), math.sin(a)], half_angle_deg=35) for a in np.arange(6) * math.pi / 3]
     p = SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=belt)
     assert cones_block_every_path(p)
     with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate the start and target"):
         solve_collocation(p)
-    # solve says so before it loads anything or starts its clock, whatever the method
-    from solvers import solve
+    # solve says so before it loads anything or starts its clock, whatever the method; the grid
+    # test's answer is remembered
+    from solvers import api, collocation, solve
     for method in ("auto", "indirect", "collocation"):
         with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate the start and target"):
             solve(p, method=method, time_budget=1e-3)
+    assert True in collocation._SEPARATION.values()
+    monkeypatch.setattr(api, "ensure_kernels", lambda prob: pytest.fail("loaded kernels first"))
+    monkeypatch.setattr(collocation, "_grid_separates", lambda *a: pytest.fail("the grid test again"))
+    with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate"):
+        solve(p)
     # the same belt with 2° gaps is passable
     open_belt = [Cone(c.axis, half_angle_deg=29) for c in belt]
     assert not cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=open_belt))

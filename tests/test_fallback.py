@@ -121,8 +121,9 @@ def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, 
     assert seen["time_budget"] == budget
 
 
-@pytest.mark.parametrize("torque_norm", [np.inf, 2.0])
-def test_a_short_budget_gets_a_coarser_fallback_that_fits(monkeypatch, torque_norm):
+@pytest.mark.parametrize("torque_norm, inertia", [(np.inf, [0.5, 0.8, 1.0]), (2.0, [0.5, 0.8, 1.0]),
+                                                  (2.0, [1.0, 1.0, 1.0])])
+def test_a_short_budget_gets_a_coarser_fallback_that_fits(monkeypatch, torque_norm, inertia):
     """The route used its whole budget: the 5 ms kept at a 10 ms budget cannot pay for the
     default profile (per-axis 16,000 steps, 12-20 ms), so the fallback plans on fewer steps, not
     below the floor; a coarser profile is flyable and never faster than the fine one."""
@@ -136,12 +137,12 @@ def test_a_short_budget_gets_a_coarser_fallback_that_fits(monkeypatch, torque_no
                             method="indirect", problem=prob, route="stub")
 
     monkeypatch.setattr(api, "_solve_indirect", route)
-    prob = _r3().replace(inertia=[0.5, 0.8, 1.0], torque_norm=torque_norm)
+    prob = _r3().replace(inertia=inertia, torque_norm=torque_norm)
     sol = solvers.solve(prob, method="indirect", warm_start=None, time_budget=0.01, fallback="eigenaxis")
     assert sol.success and sol.method == "eigenaxis"
     n = int(re.search(r"profile, (\d+) steps\)", sol.message).group(1))
-    kind = "per-axis" if np.isinf(torque_norm) else "pnorm-gyro"
-    default = 16000 if kind == "per-axis" else api.FALLBACK_GRID_PNORM_GYRO
+    kind = "no-gyro" if np.isinf(torque_norm) or inertia == [1.0, 1.0, 1.0] else "pnorm-gyro"
+    default = 16000 if kind == "no-gyro" else api.FALLBACK_GRID_PNORM_GYRO
     assert api.FALLBACK_GRID_FLOOR[kind] <= n < default
     fine = eigenaxis_answer(prob).tf
     assert fine * (1.0 - 1e-12) <= sol.tf <= fine * (1.0 + 1e-3)

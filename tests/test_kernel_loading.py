@@ -158,7 +158,7 @@ def test_a_second_thread_waits_for_the_loading(monkeypatch):
         b.start()
         a.join()
         b.join()
-        assert got["a"][0] >= 0.3 and got["b"][0] == 0.0
+        assert got["a"][0] >= 0.3 and 0.2 <= got["b"][0] < 0.3     # (b's loading time: its wait)
         assert got["b"][1] >= finished[0] and len(finished) == 1
     finally:
         kl._LOADED.pop(kind, None)

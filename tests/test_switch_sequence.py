@@ -194,3 +194,22 @@ def test_a_stalled_template_stops_early_and_a_converging_one_does_not():
             assert a.nit == 10 < b.nit and not a.success
             assert a.history[10] > 0.1 * a.history[0]
     assert converged >= 3 and stalled >= 6
+
+
+def test_the_classical_route_gives_the_stall_rule_to_templates_only(monkeypatch):
+    import math
+    from solvers import api
+    seen = []
+    real = api.solve_structure
+
+    def spy(*a, **k):
+        seen.append((k.get("route", ""), k.get("stall")))
+        return real(*a, **k)
+    monkeypatch.setattr(api, "solve_structure", spy)
+    p = SlewProblem([0.5, 0.8, 1.0], q0=[1, 0, 0, 0], qf=[math.cos(0.8), 0.0, math.sin(0.8), 0.0])
+    solve(p, method="indirect", warm_start=None, time_budget=5.0)
+    solve(p, method="indirect", time_budget=5.0)          # the learned guess's structures
+    templates = [s for r, s in seen if "template" in r]
+    others = [s for r, s in seen if "template" not in r]
+    assert templates and all(s == api.TEMPLATE_STALL for s in templates)
+    assert others and all(s is None for s in others)
