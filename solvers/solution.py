@@ -65,9 +65,10 @@ class SlewSolution:
     ``candidates`` tried, ``time_s`` spent on it, ``inference_s``; with the shipped model also
     ``predicted_tf`` and, when ``auto`` checked its answer against the collocation route,
     ``local_optimum_check``; ``table_error`` if a shipped table could not be read);
-    ``kernel_load_time`` (s): loading the compiled kernels of the problem's kind before the clock
-    started, the first solve of that kind in a process only (not in ``wall_time``, not in the
-    time budget; ``solvers.load_kernels``).
+    ``kernel_load_time`` (s), before the clock started (not in ``wall_time``, not in the time
+    budget): loading the compiled kernels of the problem's kind, the first solve of that kind in a
+    process (``solvers.load_kernels``), and for pointing and cone problems building the
+    collocation NLPs of their mesh and cone count the first time.
     """
     success: bool
     status: int
