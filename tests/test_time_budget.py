@@ -197,3 +197,19 @@ def test_solve_builds_the_nlps_of_the_mesh_it_is_given_before_its_clock():
     sol = solvers.solve(prob, time_budget=30.0, collocation={"n_intervals": 46})
     assert {10, 46, 23} <= {k[0] for k in collocation._CACHE if k[2] == 2 and k[1]}
     assert sol.success
+
+
+def test_the_warm_started_solver_is_not_built_without_the_time_for_it():
+    """A back-off round re-solves an answer warm-started; that IPOPT solver is built at its first
+    use (0.1-1.3 s, not interruptible): not when the budget left cannot pay for it (the cold
+    solver then runs from the same point), and built when it can."""
+    from solvers import collocation as col
+    sc = col._Scaled.of(TOUCH)
+    nlp = col._NLP(sc, np.full(12, 1.0 / 12), 1e-7, 200, False)    # a mesh no other test uses
+    g = col.initial_guesses(sc)[0]
+    run = nlp.solve(g.sample(nlp), time.perf_counter() + 30.0, g.source)
+    assert run.lam_x is not None and nlp.tpl._warm is None
+    nlp.solve(run.w, time.perf_counter() + 1e-3, run.source, warm=run)
+    assert nlp.tpl._warm is None
+    again = nlp.solve(run.w, time.perf_counter() + 30.0, run.source, warm=run)
+    assert nlp.tpl._warm is not None and again.success
