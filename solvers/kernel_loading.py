@@ -112,11 +112,12 @@ def ensure_kernels(problem: SlewProblem) -> float:
 def load_kernels(problems=None) -> float:
     """Load the compiled kernels before the first time-critical solve of a process.
 
-    ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load; ``None``
-    loads every kind. Returns the seconds spent. ``solve`` does this by itself before its clock
-    starts, so calling it is needed only to take that time at start-up rather than in the first
-    solve (0.2–1.8 s a kind once numba's cache exists; on a fresh install it compiles, tens of
-    seconds a kind; the module docstring)."""
+    ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load, and for
+    pointing and cone problems the collocation NLPs of their default mesh and cone count
+    (``collocation.prebuild_nlps``); ``None`` loads every kind. Returns the seconds spent.
+    ``solve`` does this by itself before its clock starts, so calling it is needed only to take
+    that time at start-up rather than in the first solve (0.2–1.8 s a kind once numba's cache
+    exists; on a fresh install it compiles, tens of seconds a kind; the module docstring)."""
     if problems is None:
         kinds = [(b, t, c) for b in ("per-axis", "p-norm") for t in ("full", "pointing") for c in (False, True)]
     else:
@@ -130,4 +131,10 @@ def load_kernels(problems=None) -> float:
     for kind in dict.fromkeys(kinds):
         prob = _representatives(kind)[0]
         total += ensure_kernels(prob)
+    if problems is not None:
+        from .collocation import prebuild_nlps
+        for p in items:
+            p = SlewProblem.from_dict(p)
+            if p.cones or p.is_pointing:
+                total += prebuild_nlps(p)
     return total
