@@ -406,14 +406,12 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
-    if prob.cones and method != "eigenaxis":
+    if method != "eigenaxis":
         # an infeasible problem is an input error, found before any loading; the grid test
         # (about 0.1 s for three mutually overlapping cones) is remembered, not repeated inside
         # the time budget
-        from .collocation import cones_block_every_path
-        if cones_block_every_path(prob):
-            raise ValueError(f"cones: the {len(prob.cones)} keep-out cone(s) separate the start and target "
-                             "sensor directions: every path crosses a cone (infeasible)")
+        from .collocation import check_cones_passable
+        check_cones_passable(prob)
     # the kernels are loaded (on a fresh install, compiled) before the clock starts: the time
     # budget is for solving, and loading inside it would cut the first solve of a process short
     load = 0.0 if method == "eigenaxis" else ensure_kernels(prob)

@@ -310,6 +310,14 @@ def cones_block_every_path(problem, resolution_deg=0.5):
 _SEPARATION: dict = {}
 
 
+def check_cones_passable(problem) -> None:
+    """``ValueError`` (field ``cones``) when the cones separate the start and target sensor
+    directions (``cones_block_every_path``): an infeasible problem is an input error."""
+    if problem.cones and cones_block_every_path(problem):
+        raise ValueError(f"cones: the {len(problem.cones)} keep-out cone(s) separate the start and target "
+                         "sensor directions: every path crosses a cone (infeasible)")
+
+
 def _grid_separates(problem, resolution_deg):
     """The flood fill of ``cones_block_every_path``."""
     from scipy.sparse import coo_matrix
@@ -1641,9 +1649,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
         raise ValueError(("qf" if prob.qf is not None else "sensor_target")
                          + ": the target equals the start (zero slew at rest); nothing to solve")
-    if prob.cones and cones_block_every_path(prob):
-        raise ValueError(f"cones: the {len(prob.cones)} keep-out cone(s) separate the start and target "
-                         "sensor directions: every path crosses a cone (infeasible)")
+    check_cones_passable(prob)
     sc = _Scaled.of(prob)
     deadline = t_start + float(time_budget)
     starts = initial_guesses(sc, guess, n_starts, seed, extra_starts)

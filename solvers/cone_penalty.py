@@ -37,6 +37,7 @@ import numpy as np
 
 from scipy.integrate import solve_ivp
 
+from slew_env import Cone
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qmul
 from .attitude_bvp import AttitudeBVP, NY
@@ -75,7 +76,7 @@ def load_kernels() -> None:
     the touch-point solver failed, which no quick representative solve reaches."""
     y = np.zeros(NY)
     y[0] = 1.0
-    pen = cp.pack([_LoadCone()], np.array([1.0, 0.0, 0.0]), 1.0, 0.0)
+    pen = cp.pack([Cone([0.0, 0.0, 1.0], 0.1)], np.array([1.0, 0.0, 0.0]), 1.0, 0.0)
     cp.penalty_value(y, pen)
     cp.penalty_rhs_into(y, pen, np.zeros(NY))
     ones = np.ones(3)
@@ -84,11 +85,6 @@ def load_kernels() -> None:
     inertia = np.ones(3)
     inertia.flags.writeable = False      # as a SlewProblem's arrays
     propagate(np.array([1.0, 0, 0, 0, 0, 0, 0]), u[0].copy(), inertia, 0.1, 2)
-
-
-class _LoadCone:
-    axis = np.array([0.0, 0.0, 1.0])
-    half_angle = 0.1
 
 
 class ConePenaltyBVP(AttitudeBVP):
@@ -230,22 +226,21 @@ def solve_penalised(problem, seed, *, segments=SEGMENTS, stages=STAGES, time_bud
         if not r.success:
             break
         z, T, nodes, reached, prev = r.p, r.T, r.nodes, (eps, w), (eps, w)
-    if reached is None:
-        status = STATUS_BUDGET_EXHAUSTED if time.perf_counter() > deadline else STATUS_NOT_CONVERGED
-        return SlewSolution(False, status, (f"{STATUS_MESSAGES[status]} " if status == STATUS_BUDGET_EXHAUSTED else "")
-                            + "Penalty homotopy: no stage converged from the seed's costates (" + "; ".join(log) + ").",
-                            nit, nfev, time.perf_counter() - t_start, method="indirect",
-                            route="cone penalty homotopy: " + "; ".join(log), guess="collocation", problem=problem)
-    eps, w = reached
+    def failed(status, text):
+        lead = f"{STATUS_MESSAGES[status]} " if status == STATUS_BUDGET_EXHAUSTED else ""
+        return SlewSolution(False, status, f"{lead}Penalty homotopy: {text}", nit, nfev, time.perf_counter() - t_start,
+                            method="indirect", route="cone penalty homotopy: " + "; ".join(log), guess="collocation",
+                            problem=problem)
 
     def out_of_time(where):
         # a stage's iterate is not an answer until the final polish and the verification have
         # run: none after the deadline (the certified clearance alone takes 0.05-0.1 s)
-        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED,
-                            f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} Penalty homotopy: the time budget ran out "
-                            f"{where} (stages: {'; '.join(log)}).", nit, nfev, time.perf_counter() - t_start,
-                            method="indirect", route="cone penalty homotopy: " + "; ".join(log), guess="collocation",
-                            problem=problem)
+        return failed(STATUS_BUDGET_EXHAUSTED, f"the time budget ran out {where} (stages: {'; '.join(log)}).")
+
+    if reached is None:
+        status = STATUS_BUDGET_EXHAUSTED if time.perf_counter() > deadline else STATUS_NOT_CONVERGED
+        return failed(status, "no stage converged from the seed's costates (" + "; ".join(log) + ").")
+    eps, w = reached
     sins = np.array([math.sin(c.half_angle) for c in problem.cones])
     for _ in range(MAX_BACKOFF_ROUNDS):
         if time.perf_counter() > deadline:

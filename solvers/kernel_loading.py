@@ -88,7 +88,11 @@ def _load_kind(kind: tuple) -> None:
 def ensure_kernels(problem: SlewProblem) -> float:
     """Load (or on a fresh install compile) the kernels that solves of ``problem``'s kind use,
     once a process; returns the seconds it took (0 when they were loaded already)."""
-    kind = problem_kind(problem)
+    return _ensure_kind(problem_kind(problem))
+
+
+def _ensure_kind(kind: tuple) -> float:
+    """``ensure_kernels`` for ``kind``."""
     if kind in _LOADED:
         return 0.0
     # one thread loads; another that needs the same kind waits for it (the lock: the time it
@@ -126,15 +130,10 @@ def load_kernels(problems=None) -> float:
             if not isinstance(p, (SlewProblem, dict)):
                 raise ValueError(f"problems: expected a SlewProblem, a problem dict or a list of them, "
                                  f"got {type(p).__name__} {p!r:.60}")
-        kinds = [problem_kind(SlewProblem.from_dict(p)) for p in items]
-    total = 0.0
-    for kind in dict.fromkeys(kinds):
-        prob = _representatives(kind)[0]
-        total += ensure_kernels(prob)
+        probs = [SlewProblem.from_dict(p) for p in items]
+        kinds = [problem_kind(p) for p in probs]
+    total = sum(_ensure_kind(kind) for kind in dict.fromkeys(kinds))
     if problems is not None:
         from .collocation import prebuild_nlps
-        for p in items:
-            p = SlewProblem.from_dict(p)
-            if p.cones or p.is_pointing:
-                total += prebuild_nlps(p)
+        total += sum(prebuild_nlps(p) for p in probs if p.cones or p.is_pointing)
     return total

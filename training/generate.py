@@ -149,7 +149,8 @@ def solve_warm(problem, model=None, fallback=False, **options):
     if fallback:
         return solvers.solve(prob, warm_start=model or "default", **options)
     from solvers.blas_threads import single_threaded_blas
-    solvers.load_kernels(prob)        # as solvers.solve does before its clock (once a process)
+    from solvers.kernel_loading import ensure_kernels
+    ensure_kernels(prob)              # as solvers.solve does before its clock (once a process)
     with single_threaded_blas():      # as inside solvers.solve
         sol, info, _ = _warm_start(prob, "indirect", model or "default", options)
     if sol is None and info.get("covered") is False:

@@ -62,7 +62,8 @@ def _model(model_path):
 
 
 def _init(model_path, nn_path, family=None, seed=0):
-    from solvers import load_kernels, warmstart
+    from solvers import warmstart
+    from solvers.kernel_loading import ensure_kernels
     _W["model"] = _model(model_path)
     _W["nn"] = warmstart.load_model(nn_path) if nn_path else None
     if family is not None:
@@ -70,7 +71,7 @@ def _init(model_path, nn_path, family=None, seed=0):
         # load the compiled kernels before its clock: a worker's first problem would load them
         # inside its warm budget (0.2 s with cones) and fail for it
         from training.generate import GenerationSpec, problem_for
-        load_kernels(problem_for(GenerationSpec(family, seed=seed), 0))
+        ensure_kernels(problem_for(GenerationSpec(family, seed=seed), 0))
 
 
 def _run_one(args):
