@@ -1309,9 +1309,9 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
     """Re-solve ``best`` while its replay ``rep`` shows a positive ``excess(run, rep)`` (a
     constraint kept at the collocation points but not between them), each round by
     ``solve_round(run, excess, warm) -> (run, label)`` from the last answer: ``(best, rep, nit,
-    nfev)``. A round that fails or leaves the answer's basin is tried again from the answer's
-    primal-dual point (``warm``); if that fails too, it is recorded in ``failures`` and the last
-    good answer kept."""
+    nfev)``. A round starts from the answer's primal-dual point (``warm``); one that fails or
+    leaves the answer's basin is tried again cold; if that fails too, it is recorded in
+    ``failures`` and the last good answer kept."""
     nit = nfev = 0
     if not best.success or rep.x is None:
         return best, rep, nit, nfev
@@ -1319,35 +1319,38 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
         e = excess(best, rep)
         if not e > 0.0 or time.perf_counter() > deadline:
             break
-        cold_why = None
-        for warm in (False, True):
+        first_why = None
+        # warm first: a back-off moves the constraints by about 1e-5, and IPOPT restarted from
+        # the answer's primal-dual point needs 1-5 iterations where a cold start needs 9-52
+        # (12 pointing-cones problems, seed 0, N = 80: 15-43 ms against 75-373 ms, the same T
+        # within 1e-6). A cold start also pushes the variables off their bounds (the bang-bang
+        # torques sit on them) and can leave the basin (seed 0 problem 35 with starts on 40
+        # intervals: cold +5.5 %, warm within 1e-6); it is the repair when the warm start fails
+        for warm in (True, False):
             r, label = solve_round(best, e, warm)
             nit += r.nit
             nfev += r.nfev
             # a back-off moves the answer by about its own size; a larger move is a jump to
-            # another local optimum (seen: +36 % for a 3.4e-5 rad cone back-off), not a repair.
-            # A cold IPOPT start pushes the variables off their bounds (the bang-bang torques sit
-            # on them) and can leave the basin; the warm start from the answer's primal-dual
-            # point stays (pointing-cones seed 0 problem 35 with starts on 40 intervals: cold
-            # +5.5 %, warm within 1e-6)
+            # another local optimum (seen: +36 % for a 3.4e-5 rad cone back-off), not a repair
+            tag = ", warm" if warm else ", cold"
             if not r.success:
-                why = f"{best.source} ({label}{', warm' if warm else ''}): {r.status}"
+                why = f"{best.source} ({label}{tag}): {r.status}"
             elif abs(r.T - best.T) > max(1e-3, 10.0 * e) * best.T:
-                why = (f"{best.source} ({label}{', warm' if warm else ''}): left the answer's basin "
+                why = (f"{best.source} ({label}{tag}): left the answer's basin "
                        f"(T {best.T:.6g} → {r.T:.6g})")
             else:
                 why = None
             if why is None:
-                if cold_why is not None:
-                    failures.append(f"{cold_why}; repaired: the warm restart stayed in the basin")
+                if first_why is not None:
+                    failures.append(f"{first_why}; repaired: the cold restart stayed in the basin")
                 break
-            if warm:
-                failures += [cold_why, why]
+            if not warm:
+                failures += [first_why, why]
                 break
             if time.perf_counter() > deadline:
                 failures.append(why)
                 break
-            cold_why = why
+            first_why = why
         if why is not None:
             break
         best = r
@@ -1583,7 +1586,8 @@ def _grids(N, cones, coarse):
 
 def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=True, verbose=False) -> float:
     """Build the NLPs that a collocation solve of ``problem`` on one mesh of ``n_intervals``
-    (default: the default mesh) uses: the starts' coarse grid, the mesh, the ``N / 2`` comparison
+    (default: the default mesh) uses: the starts' coarse grid, the mesh (and, with cones or a rate
+    limit, its warm-started solver for the back-off rounds), the ``N / 2`` comparison
     grid. Seconds spent (0 where they are built already). ``solve`` calls it before its clock
     starts for pointing targets and cones, whose default route begins with collocation: building
     an NLP cannot be interrupted (0.05–1.2 s the first time in a process)."""
@@ -1597,8 +1601,10 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=Tru
     t0 = time.perf_counter()
     for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
         if n is not None:
-            _template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl), int(mi),
-                      bool(verbose))
+            tpl = _template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl),
+                            int(mi), bool(verbose))
+            if n == N and (prob.cones or sc.rate is not None):
+                tpl.warm_solver     # the back-off rounds start from the answer's primal-dual point
     return time.perf_counter() - t0
 
 
