@@ -345,6 +345,8 @@ def test_auto_takes_the_warm_starts_faster_extremal(monkeypatch):
     assert sol.verification["cone_clearance"]["value"] >= -1e-6
     # measured: the default route alone stops at 2.4026 (a local optimum)
     if alone.tf > sol.tf * (1 + 1e-6):
+        # the default gate lets it through: the route's answer is far above the predicted time
+        assert sol.warm_start["challenged"] is True and alone.tf > sol.warm_start["tf"]
         assert sol.warm_start["won"] is True and "faster extremal" in sol.route
         assert sol.guess.startswith("nearest-neighbour") and round(alone.tf, 9) in sol.candidates_tf
 
@@ -355,9 +357,39 @@ def test_a_failing_challenger_leaves_the_verified_answer(monkeypatch):
     def broken(*a, **k):
         raise RuntimeError("model bug (test)")
     monkeypatch.setattr(api, "_solve_learned_cones", broken)
-    sol = solve(TOUCH)
-    assert sol.success and sol.warm_start["role"] == "challenger"
+    sol = solve(TOUCH, cone_challenge="always")
+    assert sol.success and sol.warm_start["role"] == "challenger" and sol.warm_start["challenged"]
     assert sol.warm_start["won"] is False and "model bug (test)" in sol.warm_start["error"]
+
+
+def test_the_cone_challenge_is_gated_by_the_networks_predicted_time(monkeypatch):
+    import solvers.api as api
+    from solvers.warmstart import default_cone_model
+    predicted = api._network_predicted_tf(default_cone_model(), TOUCH)
+    assert predicted == pytest.approx(default_cone_model().network.guess(TOUCH).tf, rel=1e-12)
+    calls = []
+    orig = api._solve_learned_cones
+    monkeypatch.setattr(api, "_solve_learned_cones", lambda *a, **k: calls.append(1) or orig(*a, **k))
+    # the gate at 10 x the prediction: no answer is above it, the challenge does not run
+    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 10.0)
+    skipped = solve(TOUCH)
+    assert skipped.success and not calls
+    ws = skipped.warm_start
+    assert ws["role"] == "challenger" and ws["challenged"] is False and ws["won"] is False
+    assert ws["predicted_tf"] == pytest.approx(predicted, rel=1e-12) and "not above" in ws["reason"]
+    # at 0.1 x, every answer is above it: the challenge runs
+    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 0.1)
+    ran = solve(TOUCH)
+    assert len(calls) == 1 and ran.warm_start["challenged"] is True
+    assert ran.tf <= skipped.tf * (1 + 1e-9)
+    # "always" ignores the gate; "never" runs no challenge and records none
+    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 10.0)
+    solve(TOUCH, cone_challenge="always")
+    assert len(calls) == 2
+    never = solve(TOUCH, cone_challenge="never")
+    assert len(calls) == 2 and not never.warm_start and never.tf == pytest.approx(skipped.tf, rel=1e-9)
+    with pytest.raises(ValueError, match="^cone_challenge: expected one of 'gated', 'always', 'never', got 'yes'"):
+        solve(TOUCH, cone_challenge="yes")
 
 
 def test_cone_decoding_of_the_outputs():

@@ -71,13 +71,17 @@ def add_arguments(p):
                    help="batch: worker processes (default 1)")
     p.add_argument("--no-progress", action="store_true", help="batch: no progress bar")
     p.add_argument("--warm-start", default="default", metavar="MODEL",
-                   help="learned warm start: 'default' (the shipped full-attitude model; with cones, auto tries "
-                        "the pointing-cones warm start after its route and keeps a faster answer), 'pointing-cones' "
+                   help="learned warm start: 'default' (the shipped full-attitude model; with cones, auto starts "
+                        "collocation from the pointing-cones table's nearest solutions too, and may try that warm "
+                        "start after its route, keeping a faster answer: --cone-challenge), 'pointing-cones' "
                         "(that warm start as the first guess, opt-in), 'none', or a model file "
                         "(.npz from 'slew train', .nn.npz nearest-neighbour table)")
     p.add_argument("--no-local-optimum-check", dest="local_optimum_check", action="store_false", default=True,
                    help="auto: return the learned guess's extremal at once, without running the collocation route "
                         "where it may be a local optimum (well above the predicted time, or near a half turn)")
+    p.add_argument("--cone-challenge", choices=("gated", "always", "never"), default=None,
+                   help="auto with cones: run the pointing-cones warm start after the route where the answer is "
+                        "slower than the network's predicted time (gated, the default), always, or never")
     p.add_argument("--time-budget", type=float, metavar="S",
                    help="seconds for the whole solve (default: the solver's, 20; collocation 60; "
                         "--method eigenaxis takes none)")
@@ -115,6 +119,8 @@ def _solve_options(args):
         opts["seed"] = args.seed
     if not getattr(args, "local_optimum_check", True):
         opts["local_optimum_check"] = False
+    if getattr(args, "cone_challenge", None) is not None:
+        opts["cone_challenge"] = args.cone_challenge
     tb = getattr(args, "time_budget", None)
     if tb is not None:
         if not (math.isfinite(tb) and tb > 0):
@@ -233,7 +239,9 @@ def summary_lines(sol, prob, warm=None):
                  f"first solve of this kind of problem in the process; a fresh install compiles them)")
     ws = warm or getattr(sol, "warm_start", None) or {}
     if ws:
-        if ws.get("covered") and ws.get("role") == "challenger":
+        if ws.get("covered") and ws.get("role") == "challenger" and ws.get("challenged") is False:
+            L.append(f"warm start    {ws.get('model')}: no challenge after the route ({ws.get('reason', '')})")
+        elif ws.get("covered") and ws.get("role") == "challenger":
             res = ("found a faster extremal, which is the answer" if ws.get("won") else
                    f"converged to {ws['tf']:.9g}, not faster: the route's answer stands" if ws.get("succeeded") else
                    "did not converge: the route's answer stands")
