@@ -180,3 +180,26 @@ def test_certified_clearance_is_a_lower_bound():
     true_min = float(margins(p, qf).min())
     assert true_min == pytest.approx(-math.radians(5.0), abs=1e-6)
     assert cert <= true_min <= sample_min
+
+
+# pointing-cones family without cones, seed 11, problem 70: its optimum has a singular arc on the
+# roll axis (collocation's axis-1 torque interior over 9 % of tf), where no bang-bang extremal is
+# near; auto skips the exact refinement (0.5-1.2 s, futile on 22 of 22 such problems) and answers
+# by the switch-time optimisation of collocation's sequence
+POINTING_SINGULAR = {"inertia": [0.9681902246088698, 0.7205816372685396, 0.7986505040429078],
+                     "q0": [0.5464949693048493, 0.7925285502659389, 0.08115800427253929, -0.2581765362699704],
+                     "sensor_axis": [1.0, 0.0, 0.0],
+                     "sensor_target": [-0.0013591999349750342, 0.9517593783068106, -0.30684236731678766]}
+
+
+def test_auto_reads_a_pointing_slews_singular_arc_before_refining():
+    from solvers.api import _pointing_singular_check
+    p = SlewProblem.from_dict(POINTING_SINGULAR)
+    assert _pointing_singular_check(p)
+    assert not _pointing_singular_check(p.replace(rate_max=2.0))       # coasts at a rate limit are interior too
+    assert not _pointing_singular_check(p.replace(torque_norm=2.0))
+    sol = solve(p)
+    assert sol.success and sol.method == "switch-time" and not sol.exact
+    assert "exact refinement skipped: collocation's torque on axis 1 is interior" in sol.route
+    assert sol.tf == pytest.approx(1.8300916, rel=1e-5)
+    assert sol.verification["boundary_attitude_error"]["passed"]
