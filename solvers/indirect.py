@@ -247,6 +247,14 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem, structure=
     """``SlewSolution`` fields, in the problem's units, of the extremal ``(z, T)`` recorded as
     ``tr`` (a ``Trajectory``): costates rescaled to ``H ≡ -1``, switch times, the dense samples,
     the control and ``tf_tol`` from the boundary and replay errors in ``checks``."""
+    # the answer's own control law, whatever mode the solver was left in: a later candidate's
+    # p-norm continuation, stopped part-way, leaves an intermediate p, and the torque, the
+    # control(t) closure and the costate scale of an earlier, verified answer were built with it
+    # (session 27's independent replay: p = 1.807 for a p = 1.5 answer, ||u||_p = 1.13)
+    if math.isinf(problem.torque_norm):
+        bvp.set_mode("bang")
+    else:
+        bvp.set_mode("pnorm", p=float(problem.torque_norm))
     tau = bvp.tau
     umax0 = float(problem.torque_max.max())
     H0 = bvp.hamiltonian(tr.y[0], tr.signs[0])

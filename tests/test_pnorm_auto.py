@@ -64,3 +64,50 @@ def test_when_the_indirect_route_fails_collocation_answers_and_says_why(monkeypa
     assert s.success and calls[0] is None
     assert "indirect first" in s.route and "failed" in s.route and "collocation" in s.route
     assert s.tf == pytest.approx(solve(p, method="indirect").tf, rel=1e-8)
+
+
+# session 27's independent replay (runs/s27/audit): J = (1, 0.1, 0.05) at p = 1.5. auto's exact
+# refinement verified the extremal, then a later candidate's continuation from p = 2 stopped
+# part-way and left the solver at p ≈ 1.8; the answer's torque, control(t) and costate scale
+# were built with that p (||u||_1.5 up to 1.13, control(t) flown missed by 0.6 rad, H(0) -0.91)
+STALE_P = {"inertia": [1.0, 0.1, 0.05], "torque_norm": 1.5,
+           "q0": [-0.8940070419995214, -0.07079307249107314, -0.33547985299015964, -0.2884319988840359],
+           "qf": [-0.09049384450137549, 0.4293418955873556, -0.10128809767426866, -0.8928701596930795]}
+
+
+def _pnorm_of(u, umax, p):
+    return np.max(np.sum(np.abs(np.asarray(u) / umax) ** p, axis=1) ** (1.0 / p))
+
+
+def test_a_pnorm_answer_is_reported_with_its_own_p():
+    sol = solve(STALE_P)
+    assert sol.success and sol.exact
+    assert _pnorm_of(sol.u, 1.0, 1.5) == pytest.approx(1.0, abs=1e-6)
+    tt = np.linspace(0.0, sol.tf, 37)
+    assert _pnorm_of(sol.control(tt), 1.0, 1.5) <= 1.0 + 1e-6
+
+
+def test_solution_fields_use_the_problems_law_whatever_mode_the_solver_was_left_in():
+    from solvers.attitude_bvp import AttitudeBVP
+    from solvers.guesses import Guess
+    from solvers.indirect import solution_fields
+    from solvers.verify import verify
+    prob = SlewProblem([1.0, 0.6, 0.4], torque_norm=1.5, q0=qfrom_uniform(0.1, 0.5, 0.7),
+                       qf=qfrom_uniform(0.8, 0.2, 0.3))
+    sol = solve(prob, method="indirect")
+    assert sol.success
+    bvp = AttitudeBVP(prob)
+    bvp.set_mode("pnorm", p=1.5)
+    z, T = Guess(sol.costate0, sol.tf).to_nondim(bvp)
+    ok, checks, _, tr = verify(bvp, z, T)
+    assert ok
+    ref = solution_fields(bvp, z, T, "test", tr, checks, "test", prob)
+    np.testing.assert_allclose(ref["costate0"], sol.costate0, rtol=1e-7, atol=1e-9)
+    assert _pnorm_of(ref["u"], 1.0, 1.5) == pytest.approx(1.0, abs=1e-9)
+    tt = np.linspace(0.0, sol.tf, 21)
+    for mode, kw in (("pnorm", {"p": 1.807}), ("tanh", {"eps": 0.1}), ("bang", {})):
+        bvp.set_mode(mode, **kw)           # what a later candidate (a stopped continuation) leaves
+        f = solution_fields(bvp, z, T, "test", tr, checks, "test", prob)
+        np.testing.assert_allclose(f["costate0"], ref["costate0"], rtol=1e-12)
+        np.testing.assert_allclose(f["u"], ref["u"], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(f["_control"](tt), ref["_control"](tt), rtol=1e-12, atol=1e-14)
