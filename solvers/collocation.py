@@ -1309,9 +1309,9 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
     """Re-solve ``best`` while its replay ``rep`` shows a positive ``excess(run, rep)`` (a
     constraint kept at the collocation points but not between them), each round by
     ``solve_round(run, excess, warm) -> (run, label)`` from the last answer: ``(best, rep, nit,
-    nfev)``. A round starts from the answer's primal-dual point (``warm``); one that fails or
-    leaves the answer's basin is tried again cold; if that fails too, it is recorded in
-    ``failures`` and the last good answer kept."""
+    nfev)``. A round starts from the answer's primal-dual point (``warm``); one that fails, leaves
+    the answer's basin or makes no progress (its replay's excess not below the last) is tried
+    again cold; if that fails too, it is recorded in ``failures`` and the last good answer kept."""
     nit = nfev = 0
     if not best.success or rep.x is None:
         return best, rep, nit, nfev
@@ -1325,7 +1325,10 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
         # (12 pointing-cones problems, seed 0, N = 80: 15-43 ms against 75-373 ms, the same T
         # within 1e-6). A cold start also pushes the variables off their bounds (the bang-bang
         # torques sit on them) and can leave the basin (seed 0 problem 35 with starts on 40
-        # intervals: cold +5.5 %, warm within 1e-6); it is the repair when the warm start fails
+        # intervals: cold +5.5 %, warm within 1e-6); it is the repair when the warm start fails.
+        # A warm start can also accept its starting point as it is (0 iterations on a rate
+        # back-off of 1e-8: only the states are moved inside the bounds, the replay is unchanged;
+        # session 27's review, full-attitude seed 5 problem 29): no progress is a failure too
         for warm in (True, False):
             r, label = solve_round(best, e, warm)
             nit += r.nit
@@ -1333,6 +1336,7 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
             # a back-off moves the answer by about its own size; a larger move is a jump to
             # another local optimum (seen: +36 % for a 3.4e-5 rad cone back-off), not a repair
             tag = ", warm" if warm else ", cold"
+            rep_r = None
             if not r.success:
                 why = f"{best.source} ({label}{tag}): {r.status}"
             elif abs(r.T - best.T) > max(1e-3, 10.0 * e) * best.T:
@@ -1340,6 +1344,12 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
                        f"(T {best.T:.6g} → {r.T:.6g})")
             else:
                 why = None
+                rep_r = _replay(sc, r)
+                nfev += rep_r.nfev
+                if warm and rep_r.x is not None:
+                    e_r = excess(r, rep_r)
+                    if e_r > 0.0 and not e_r < e:
+                        why = f"{best.source} ({label}{tag}): no progress (excess {e:.3g} → {e_r:.3g})"
             if why is None:
                 if first_why is not None:
                     failures.append(f"{first_why}; repaired: the cold restart stayed in the basin")
@@ -1353,9 +1363,7 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
             first_why = why
         if why is not None:
             break
-        best = r
-        rep = _replay(sc, best)
-        nfev += rep.nfev
+        best, rep = r, rep_r
     return best, rep, nit, nfev
 
 

@@ -489,3 +489,32 @@ def test_a_back_off_round_repaired_by_the_cold_restart_is_taken():
     assert rounds == [True, False] and best.T == 2.815173 and nit == 2
     assert len(failures) == 1 and failures[0].endswith("repaired: the cold restart stayed in the basin")
     assert "warm): left the answer's basin" in failures[0]
+
+
+def test_a_warm_back_off_round_that_makes_no_progress_is_repaired_cold():
+    # (session 27's review) a rate back-off of ~1e-8 from the answer's primal-dual point ended at
+    # IPOPT iteration 0 with only the states moved inside the bounds: the replay kept its excess,
+    # the round counted as a success, and the answer failed its rate check under a short budget
+    from solvers.collocation import _back_off
+
+    class Run:
+        def __init__(self, T, excess):
+            self.T, self.success, self.nit, self.nfev, self.source = T, True, 1, 1, "start"
+            self.excess = excess
+    failures, rounds = [], []
+
+    def solve_round(run, e, warm):
+        rounds.append(warm)
+        return (Run(2.0, 2.3e-8) if warm else Run(2.0000001, -1e-12)), "rate back-off 2.3e-08"
+    rep = type("Rep", (), {"x": np.zeros((2, 7)), "nfev": 1})()
+    import solvers.collocation as C
+    orig = C._replay
+    C._replay = lambda sc, run: type("Rep", (), {"x": np.zeros((2, 7)), "nfev": 1, "run": run})()
+    try:
+        best, rep2, nit, _ = _back_off(None, Run(2.0, 2.3e-8), rep, math.inf, failures, solve_round,
+                                       lambda run, r: run.excess)
+    finally:
+        C._replay = orig
+    assert rounds == [True, False] and best.T == 2.0000001 and rep2.run is best and nit == 2
+    assert len(failures) == 1 and "warm): no progress (excess 2.3e-08 → 2.3e-08)" in failures[0]
+    assert failures[0].endswith("repaired: the cold restart stayed in the basin")

@@ -443,3 +443,18 @@ def test_cone_canonical_slots_keep_the_problem_order_on_a_tie_and_the_reference_
     ax = np.array([0.0, -d[2], d[1]]) / math.hypot(d[1], d[2])
     acc = 1.0 / np.max(np.abs(cf.x[3:6] * ax) / cf.x[6:9])
     assert cf.T_ref == pytest.approx(2 * math.sqrt(th / acc), rel=1e-14)
+
+
+def test_a_damaged_shipped_cone_model_does_not_cost_the_verified_answer(monkeypatch, tmp_path):
+    # (session 27's review) the challenger read the shipped model outside its guard: a damaged
+    # file raised out of solve after the route had a verified answer
+    import solvers.warmstart as ws
+    bad = tmp_path / "pointing-cones.npz"
+    bad.write_bytes(b"not an npz file")
+    monkeypatch.setattr(ws, "DEFAULT_CONE_MODEL_FILE", str(bad))
+    sol = solve(TOUCH)
+    assert sol.success and sol.warm_start["role"] == "challenger" and sol.warm_start["challenged"] is False
+    assert sol.warm_start["error"].startswith("ModelFileError") and "could not be read" in sol.warm_start["reason"]
+    # asked for by name, the same file is an input error, not a silent fallback
+    with pytest.raises(ModelFileError):
+        solve(TOUCH, warm_start=str(bad))
