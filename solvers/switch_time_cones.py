@@ -94,7 +94,9 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
     t_start = time.perf_counter()
     deadline = t_start + time_budget
     stats = {"nfev": 0, "nit": 0}
-    fracs = (np.arange(BASE_SAMPLES) + 0.5) / BASE_SAMPLES
+    # sample instants are for the cones' margins: without cones none (each sample splits an arc:
+    # 64 samples made a pointing slew's arcs about 4 times as many)
+    fracs = (np.arange(BASE_SAMPLES) + 0.5) / BASE_SAMPLES if cones else np.zeros(0)
     cache = {}
 
     def evaluate(v, jac=False):
