@@ -759,6 +759,12 @@ class _NLP:
         P[self.tpl.i_par["delta"]] = delta
         return P
 
+    def warm_ready(self, deadline) -> bool:
+        """Whether a warm start before ``deadline`` would use the warm-started solver: it is
+        built, or the time left pays for building it (else ``solve`` starts cold)."""
+        return (self.tpl._warm is not None
+                or deadline - time.perf_counter() > build_estimate(self.N, len(self.sc.prob.cones)))
+
     def solve(self, w0, deadline, source, delta=0.0, warm: Optional["_Run"] = None) -> _Run:
         """IPOPT from ``w0``; with ``warm`` (an answer of this NLP), from its primal-dual point."""
         tpl = self.tpl
@@ -1329,7 +1335,11 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
         # A warm start can also accept its starting point as it is (0 iterations on a rate
         # back-off of 1e-8: only the states are moved inside the bounds, the replay is unchanged;
         # session 27's review, full-attitude seed 5 problem 29): no progress is a failure too
-        for warm in (True, False):
+        # (where the warm-started solver cannot be built in the time left, the "warm" round would be
+        # the cold one, solved twice on failure: the cold round alone)
+        nlp = getattr(best, "nlp", None)
+        modes = (True, False) if nlp is None or nlp.warm_ready(deadline) else (False,)
+        for warm in modes:
             r, label = solve_round(best, e, warm)
             nit += r.nit
             nfev += r.nfev
@@ -1355,7 +1365,7 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
                     failures.append(f"{first_why}; repaired: the cold restart stayed in the basin")
                 break
             if not warm:
-                failures += [first_why, why]
+                failures += [w for w in (first_why, why) if w is not None]
                 break
             if time.perf_counter() > deadline:
                 failures.append(why)

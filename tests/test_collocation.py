@@ -518,3 +518,26 @@ def test_a_warm_back_off_round_that_makes_no_progress_is_repaired_cold():
     assert rounds == [True, False] and best.T == 2.0000001 and rep2.run is best and nit == 2
     assert len(failures) == 1 and "warm): no progress (excess 2.3e-08 → 2.3e-08)" in failures[0]
     assert failures[0].endswith("repaired: the cold restart stayed in the basin")
+
+
+def test_a_back_off_round_without_time_to_build_the_warm_solver_runs_once_cold():
+    # (session 27's review) where the budget left cannot pay for building the warm-started
+    # solver, the "warm" round was a cold solve, repeated as the repair when it failed
+    from solvers.collocation import _back_off
+
+    class NLP:
+        def warm_ready(self, deadline):
+            return False
+
+    class Run:
+        def __init__(self, T):
+            self.T, self.success, self.nit, self.nfev, self.source, self.nlp = T, True, 1, 1, "start", NLP()
+    failures, rounds = [], []
+
+    def solve_round(run, e, warm):
+        rounds.append(warm)
+        return Run(2.5), "cone back-off 1e-05 rad"      # leaves the basin
+    rep = type("Rep", (), {"x": np.zeros((2, 7)), "nfev": 1})()
+    best, rep2, nit, _ = _back_off(None, Run(2.0), rep, math.inf, failures, solve_round, lambda run, r: 1e-5)
+    assert rounds == [False] and best.T == 2.0 and rep2 is rep and nit == 1
+    assert len(failures) == 1 and "cold): left the answer's basin" in failures[0]
