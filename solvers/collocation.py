@@ -773,9 +773,7 @@ class _NLP:
         args = dict(x0=w0, p=self.params(delta), lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
         # (the warm-started solver is built at its first use: not when the budget left cannot pay
         # for it; the cold solver then starts from the same point)
-        left = deadline - time.perf_counter()
-        if warm is not None and warm.lam_x is not None and (
-                tpl._warm is not None or left > build_estimate(self.N, len(self.sc.prob.cones))):
+        if warm is not None and warm.lam_x is not None and self.warm_ready(deadline):
             solver = tpl.warm_solver
             args.update(x0=warm.w, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
         r = solver(**args)

@@ -43,6 +43,7 @@ import tempfile
 import time
 
 METHOD_CHOICES = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")  # == solvers.METHODS (tested; not imported: fast --help)
+CONE_CHALLENGE_CHOICES = ("gated", "always", "never")   # == solvers.api.CONE_CHALLENGE_MODES (tested; as above)
 BAD_LINE_STATUS = -1        # batch record of a line that does not validate (ValueError)
 INTERNAL_ERROR_STATUS = -2  # batch record of a line on which the solver raised anything else
 
@@ -79,7 +80,7 @@ def add_arguments(p):
     p.add_argument("--no-local-optimum-check", dest="local_optimum_check", action="store_false", default=True,
                    help="auto: return the learned guess's extremal at once, without running the collocation route "
                         "where it may be a local optimum (well above the predicted time, or near a half turn)")
-    p.add_argument("--cone-challenge", choices=("gated", "always", "never"), default=None,
+    p.add_argument("--cone-challenge", choices=CONE_CHALLENGE_CHOICES, default=None,
                    help="auto with cones: run the pointing-cones warm start after the route where the answer is "
                         "slower than the network's predicted time (gated, the default), always, or never")
     p.add_argument("--time-budget", type=float, metavar="S",
