@@ -45,6 +45,7 @@ in about 1 case in 13.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import replace
@@ -1163,7 +1164,8 @@ def _cone_neighbour_starts(prob) -> list:
         model = warmstart.resolve("pointing-cones", prob)
         if model is None or model.covers(prob):
             return []
-        return list(model.guess(prob).iter_all())[:CONE_NEIGHBOUR_STARTS]
+        # (the later candidates are deferred: only these are computed)
+        return list(itertools.islice(model.guess(prob).iter_all(), CONE_NEIGHBOUR_STARTS))
     except Exception:   # noqa: BLE001 - a damaged or missing model: the route's own starts
         return []
 
@@ -1177,7 +1179,8 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
     t0 = time.perf_counter()
     tried, last = 0, None
     nit = nfev = 0
-    for cand in g.all():
+    skipped = []        # deferred candidates that could not be made (a model's error): skipped
+    for cand in g.iter_all(errors=skipped):
         left = min(budget - (time.perf_counter() - t0), CONE_CANDIDATE_CAP if cap is None else cap)
         if left <= 0.0:
             break
@@ -1196,7 +1199,8 @@ def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
         if sol.success:
             break
     if last is None:
-        return SlewSolution(False, STATUS_NOT_CONVERGED, "no time left for the guess", 0, 0,
+        why = f"no candidate could be made ({'; '.join(skipped)[:300]})" if skipped else "no time left for the guess"
+        return SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0,
                             time.perf_counter() - t0, method="indirect", problem=prob, route="learned guess: no time")
     last.nit, last.nfev, last.n_candidates = nit, nfev, tried
     last.wall_time = time.perf_counter() - t0

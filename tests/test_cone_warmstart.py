@@ -294,6 +294,71 @@ def test_shipped_cone_warm_start_tries_the_table_then_the_network():
         type(m)(m.table, m.network)
 
 
+def test_the_tables_nearest_rows_are_the_brute_force_ones():
+    from solvers.warmstart import default_cone_model
+    from solvers.warmstart.cone_features import cone_canonical_form
+    from slew_env import TaskDistribution
+    table = default_cone_model().table
+    Xs = table.a["X"] / table.scale
+    dist = TaskDistribution.family("pointing-cones")
+    for i in range(40):
+        x = cone_canonical_form(dist.sample(np.random.default_rng([4242, i]))).x
+        d = np.sum((Xs - x / table.scale) ** 2, axis=1)
+        for k in (1, 4, 9):
+            idx = table.nearest(x, k)
+            assert list(idx) == list(np.argsort(d, kind="stable")[:k])
+    # a tabled problem's nearest row is its own; k past the table's size is the whole table
+    for j in (0, 17, table.a["X"].shape[0] - 1):
+        assert table.nearest(table.a["X"][j], 1)[0] == j
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    small = ConeNearestNeighbourModel({key: v[:3] for key, v in table.a.items()})
+    assert sorted(small.nearest(table.a["X"][1], 10)) == [0, 1, 2] and small.nearest(table.a["X"][1], 10)[0] == 1
+
+
+def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):
+    from solvers.warmstart import default_cone_model
+    m = default_cone_model()
+    calls = []
+    real = m.network.guess_from_form
+    monkeypatch.setattr(m.network, "guess_from_form", lambda *a, **k: calls.append(1) or real(*a, **k))
+    made = []
+    real_row = m.table.row_guess
+    monkeypatch.setattr(m.table, "row_guess", lambda *a, **k: made.append(a[2]) or real_row(*a, **k))
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None and g.source == "nearest-neighbour[0]"
+    assert len(made) == 1 and not calls              # the nearest solution only
+    assert all(callable(c) for c in g.candidates)
+    sources = [c.source for c in g.all()]
+    assert len(made) == 4 and len(calls) == 1         # the network once, for its two parts
+    assert sources[:4] == [f"nearest-neighbour[{k}]" for k in range(4)]
+    # the first two (collocation's starts under auto) make no others
+    from solvers import api
+    made.clear(), calls.clear()
+    monkeypatch.setattr(type(m), "covers", lambda self, p: None)
+    assert len(api._cone_neighbour_starts(TOUCH)) == 2 and len(made) == 2 and not calls
+
+
+def test_a_deferred_candidate_that_fails_is_skipped(monkeypatch):
+    import solvers.api as api
+    from solvers.warmstart import default_cone_model
+    m = default_cone_model()
+
+    def broken(*a, **k):
+        raise FloatingPointError("the network broke")
+    monkeypatch.setattr(m.network, "guess_from_form", broken)
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None
+    # the neighbours fail (a budget too short to converge) and the network's parts cannot be made:
+    # the route says so instead of raising
+    import solvers.cone_touch as ct
+    monkeypatch.setattr(ct, "solve_touch_guess", lambda prob, cand, **kw: api.SlewSolution(
+        False, api.STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
+    sol = api._solve_learned_cones(TOUCH, g, {}, budget=5.0)
+    assert not sol.success and sol.n_candidates == 4     # the 4 neighbours; the network skipped
+    sol = api._solve_learned_cones(TOUCH, api.Guess(g.costate0, g.tf, source="x", candidates=[broken]), {}, 5.0)
+    assert sol.n_candidates == 1
+
+
 @pytest.mark.parametrize("j", [1, 2])
 def test_a_tabled_problem_converges_from_its_own_solution(j, monkeypatch):
     import solvers.api as api

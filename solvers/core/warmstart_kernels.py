@@ -318,3 +318,37 @@ def decode_cone(out, K, n_slots, i_z, i_logT, i_touch, i_tt, i_nu, i_uf, i_count
             times[i, k] = T / (1.0 + math.exp(-float(out[i_times + i * K + k])))
         _sort_head(times[i], best)
     return z, T, p, tc, nu, uf, counts, times
+
+
+@njit(cache=True, fastmath=True)
+def nearest_rows(XT, x, k, idx):
+    """The ``k`` rows of a table nearest to ``x`` (squared Euclidean distance), nearest first,
+    into ``idx``. ``XT``: the table's standardised features, transposed (features × rows,
+    float32, C order), so that the distances accumulate over a feature at a time along
+    contiguous memory and the loop over rows vectorises; brute force beats a k-d tree in the
+    cone table's 24 dimensions (about 30 against 65 µs for 7,674 rows). float32 distances can
+    order two rows differently from float64 only when they are within about 1e-7 relative."""
+    d, n = XT.shape
+    s = np.zeros(n, dtype=np.float32)
+    for j in range(d):
+        xj = np.float32(x[j])
+        row = XT[j]
+        for i in range(n):
+            t = row[i] - xj
+            s[i] += t * t
+    best = np.full(k, np.inf)
+    for j in range(k):
+        idx[j] = -1
+    worst = np.inf
+    for i in range(n):
+        v = s[i]
+        if v < worst:
+            j = k - 1
+            while j > 0 and best[j - 1] > v:
+                best[j] = best[j - 1]
+                idx[j] = idx[j - 1]
+                j -= 1
+            best[j] = v
+            idx[j] = i
+            worst = best[k - 1]
+    return idx

@@ -17,6 +17,7 @@ Files: the network ``pointing-cones.npz`` and the table ``pointing-cones.nn.npz`
 """
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -86,14 +87,15 @@ class ConeEnsembleWarmStart:
         why, cf = self.network._coverage(problem)
         if why:
             return None, why
-        # one canonical form for the table and the network
-        g_net = self.network.guess_from_form(problem, cf)
-        cands = self.table.guess(problem, k=self.n_neighbours, cf=cf).all() + g_net.all()
-        for g in cands:
-            g.candidates = []
-        first = cands[0]
-        first.candidates = cands[1:]
-        first.touch_probabilities = getattr(g_net, "touch_probabilities", None)
+        # one canonical form for the table and the network. The nearest neighbour's guess is made
+        # now; the other neighbours and the network's guess (and its variant) only when the solver
+        # reaches them (deferred candidates): a first candidate that converges pays for nothing else
+        idx = self.table.nearest(cf.x, self.n_neighbours)
+        first = self.table.row_guess(problem, cf, int(idx[0]), 0)
+        later = [functools.partial(self.table.row_guess, problem, cf, int(j), rank)
+                 for rank, j in enumerate(idx[1:], 1)]
+        net = _NetworkParts(self.network, problem, cf)
+        first.candidates = later + [net.part(0), net.part(1)]
         # on the guess too: the model object is shared (cached), the guess is this call's
         first.inference_s = self.last_inference_s = time.perf_counter() - t0
         return first, None
@@ -103,3 +105,28 @@ class ConeEnsembleWarmStart:
         if why:
             raise ValueError(f"problem not covered by {self.name}: {why}")
         return g
+
+
+class _NetworkParts:
+    """The network's guess for one problem, made once when a deferred candidate first asks for
+    it, as its plain parts: the guess, then its variant (with or without the touches), each
+    without candidates of its own."""
+
+    def __init__(self, network, problem, cf):
+        self.network, self.problem, self.cf = network, problem, cf
+        self._parts = None
+
+    def _make(self):
+        if self._parts is None:
+            parts = self.network.guess_from_form(self.problem, self.cf).all()
+            for g in parts:
+                g.candidates = []
+            self._parts = parts
+        return self._parts
+
+    def part(self, k):
+        """A deferred candidate: the network's ``k``-th part, or ``None`` if it has fewer."""
+        def make():
+            parts = self._make()
+            return parts[k] if k < len(parts) else None
+        return make

@@ -17,10 +17,10 @@ import json
 import os
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from slew_env import SlewProblem
 from ..guesses import Guess
+from ..core import warmstart_kernels as _k
 from .cone_features import cone_canonical_form, cone_unsupported_reason, solution_from_canonical
 from .model import ModelFileError, read_npz
 from .nearest import NN_FORMAT, NN_FORMAT_VERSION, table_coverage
@@ -39,7 +39,8 @@ class ConeNearestNeighbourModel:
         self.domain = domain or {}
         self.name = name
         self.scale = np.maximum(self.a["X"].std(axis=0), 1e-3)
-        self.tree = cKDTree(self.a["X"] / self.scale)
+        # standardised, transposed, float32: the layout of the compiled brute-force query
+        self._XT = np.ascontiguousarray((self.a["X"] / self.scale).T, dtype=np.float32)
 
     @classmethod
     def from_card(cls, d, card, path):
@@ -67,6 +68,23 @@ class ConeNearestNeighbourModel:
             why = "cones: the table holds problems with 1–3 cones"
         return why
 
+    def nearest(self, x, k=None) -> np.ndarray:
+        """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the
+        canonical features ``x`` (standardised Euclidean distance), nearest first."""
+        k = max(1, min(int(k or self.k), self.a["X"].shape[0]))
+        x = np.asarray(x, float) / self.scale
+        return _k.nearest_rows(self._XT, x, k, np.empty(k, dtype=np.int64))
+
+    def row_guess(self, problem, cf, j, rank=0) -> Guess:
+        """The solution of table row ``j`` mapped to ``problem`` (canonical form ``cf``)."""
+        a = self.a
+        T = a["T"][j] * cf.T_ref / a["T_ref"][j]
+        sw = [np.sort(f[np.isfinite(f)]) * T for f in a["F"][j]]
+        touches = [(k, a["frac"][j, k] * T, np.exp(a["log_nu"][j, k]))
+                   for k in range(len(problem.cones)) if a["touch"][j, k] > 0.5]
+        c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, a["Z"][j], T, sw, a["U"][j], touches)
+        return Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]", touches=touches or None)
+
     def guess(self, problem, k=None, cf=None) -> Guess:
         """The solutions of the ``k`` (default ``self.k``) nearest problems, nearest first.
         ``cf``: the problem's canonical form, when the caller has it (and has checked coverage)."""
@@ -76,18 +94,7 @@ class ConeNearestNeighbourModel:
             if why:
                 raise ValueError(f"problem not covered by {self.name}: {why}")
             cf = cone_canonical_form(problem)
-        a = self.a
-        _, idx = self.tree.query(cf.x / self.scale, k=min(int(k or self.k), a["X"].shape[0]))
-        out = None
-        for rank, j in enumerate(np.atleast_1d(idx)):
-            T = a["T"][j] * cf.T_ref / a["T_ref"][j]
-            sw = [np.sort(f[np.isfinite(f)]) * T for f in a["F"][j]]
-            touches = [(k, a["frac"][j, k] * T, np.exp(a["log_nu"][j, k]))
-                       for k in range(len(problem.cones)) if a["touch"][j, k] > 0.5]
-            c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, a["Z"][j], T, sw, a["U"][j], touches)
-            g = Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]", touches=touches or None)
-            if out is None:
-                out = g
-            else:
-                out.candidates.append(g)
+        idx = self.nearest(cf.x, k)
+        out = self.row_guess(problem, cf, int(idx[0]), 0)
+        out.candidates = [self.row_guess(problem, cf, int(j), rank) for rank, j in enumerate(idx[1:], 1)]
         return out

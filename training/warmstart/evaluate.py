@@ -170,7 +170,7 @@ def inference_time(model, family, seed, n=200):
     elif isinstance(model, ConeEnsembleWarmStart):
         def infer(p):      # the table's neighbours and the network's outputs
             cf = cone_canonical_form(p)
-            model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
+            model.table.nearest(cf.x, model.n_neighbours)
             model.network.predict_canonical(cf.x, cf.T_ref)
     elif isinstance(model, ConeWarmStartModel):
         def infer(p):
@@ -189,7 +189,7 @@ def table_query_time(model, family, seed, n=200):
 
     def query(p):
         cf = canonical_form(p)
-        model.table.tree.query(cf.x / model.table.scale, k=model.n_neighbours)
+        model.table.nearest(cf.x, model.n_neighbours)
     return _median_time(query, model, family, seed, n)
 
 
