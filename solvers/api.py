@@ -328,8 +328,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     the whole solve's: every stage gets what is left of it and stops at its next check (between
     Newton iterations, continuation steps, candidates and IPOPT iterations), the answer then
     being the best verified one so far or status 3, budget exhausted. The first candidate of a
-    multi-start always starts (its iterations check the deadline). The compiled kernels (and, for
-    pointing and cone problems, the collocation NLPs) are loaded before the clock starts
+    multi-start always starts (its iterations check the deadline). The compiled kernels (and, where the
+    route begins with collocation, its NLPs: ``_begins_with_collocation``) are loaded before the clock starts
     (``kernel_load_time``); an NLP the budget left cannot pay for is not built
     (``benchmarks/bench_budget.py`` and ``bench_first_solve.py`` measure the overshoot). ``warm_budget`` (s, for the learned guess's candidates,
     default 1; 0.2 with keep-out cones), ``tols`` (verification tolerances, see
@@ -432,13 +432,39 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     # the kernels are loaded (on a fresh install, compiled) before the clock starts: the time
     # budget is for solving, and loading inside it would cut the first solve of a process short
     load = 0.0 if method == "eigenaxis" else ensure_kernels(prob)
-    if prob.cones and method != "eigenaxis" or prob.is_pointing and method in ("auto", "collocation"):
+    if _begins_with_collocation(prob, method, guess, warm_start):
         # so are the collocation NLPs of routes that begin with collocation (not interruptible)
         load += _prebuild_nlps(prob, col_opts)
     sol = _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, reserved,
                     check_local, use_table, cone_challenge)
     sol.kernel_load_time = load
     return sol
+
+
+def _begins_with_collocation(prob, method, guess, warm_start) -> bool:
+    """Whether the route of ``method`` for ``prob`` begins with a collocation solve, whose NLPs
+    ``solve`` then builds before its clock starts: collocation itself; any route with cones;
+    ``auto`` for a pointing target, and for a full-attitude problem that neither a given
+    ``guess``, the indirect multi-start of a p-norm bound with p ≤ 2, nor a warm start covering
+    it goes before (a rate limit, unequal bounds, ``warm_start=None``, ...). Measured (a new
+    process a solve, budget 0.3 s): ``auto`` without a model verified 0 of 4 full-attitude
+    slews, as building its NLPs took the budget (status 3)."""
+    if method == "eigenaxis":
+        return False
+    if method == "collocation" or prob.cones:
+        return True
+    if method != "auto":
+        return False
+    if prob.is_pointing:
+        return True
+    if guess is not None or _pnorm_indirect_first(prob):
+        return False
+    from . import warmstart
+    try:
+        model = warmstart.resolve(warm_start, prob)
+        return model is None or bool(model.covers(prob))
+    except Exception:   # noqa: BLE001 - a model that cannot be read: the solve reports it
+        return False
 
 
 def _prebuild_nlps(prob, col_opts) -> float:

@@ -67,7 +67,8 @@ class SlewSolution:
     ``local_optimum_check``; ``table_error`` if a shipped table could not be read);
     ``kernel_load_time`` (s), before the clock started (not in ``wall_time``, not in the time
     budget): loading the compiled kernels of the problem's kind, the first solve of that kind in a
-    process (``solvers.load_kernels``), and for pointing and cone problems building the
+    process (``solvers.load_kernels``), and where the route begins with collocation (pointing
+    and cone problems; ``auto`` on full-attitude problems no warm start covers) building the
     collocation NLPs of their mesh and cone count the first time.
     """
     success: bool

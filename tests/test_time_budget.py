@@ -199,6 +199,37 @@ def test_solve_builds_the_nlps_of_the_mesh_it_is_given_before_its_clock():
     assert sol.success
 
 
+def test_routes_that_begin_with_collocation_have_their_nlps_built_before_the_clock(monkeypatch):
+    """``auto`` on a full-attitude problem that no warm start covers (here a rate limit) begins
+    with collocation: its NLPs are built before the clock, as for pointing and cone problems.
+    A problem the shipped model covers, a p-norm bound with p ≤ 2 (indirect first) and the
+    indirect method do not build them."""
+    from solvers import collocation
+    full = SlewProblem(inertia=[1.0, 0.8, 0.6], torque_max=1.0, q0=[1, 0, 0, 0],
+                       qf=[math.cos(0.6), math.sin(0.6) * 0.6, math.sin(0.6) * 0.8, 0.0])
+    rated = full.replace(rate_max=0.5)
+    assert api._begins_with_collocation(rated, "auto", None, "default")
+    assert api._begins_with_collocation(full, "auto", None, None)
+    assert api._begins_with_collocation(full, "collocation", None, "default")
+    assert not api._begins_with_collocation(full, "auto", None, "default")          # the learned guess first
+    assert not api._begins_with_collocation(full.replace(torque_norm=2.0), "auto", None, None)
+    assert not api._begins_with_collocation(rated, "indirect", None, None)
+    assert not api._begins_with_collocation(rated, "eigenaxis", None, None)
+    assert not api._begins_with_collocation(full, "auto", solvers.Guess(np.ones(7), 2.0), None)
+    built = []
+    monkeypatch.setattr(api, "_prebuild_nlps", lambda prob, col_opts: built.append(prob) or 0.0)
+    solvers.solve(full, time_budget=5.0)
+    assert not built
+    sol = solvers.solve(rated, time_budget=5.0)
+    assert built == [rated] and sol.success
+    # for real: the mesh given is built, the rate-limited structure's warm-started solver too
+    monkeypatch.undo()
+    sol = solvers.solve(rated, collocation={"n_intervals": 43}, time_budget=20.0)
+    keys = [k for k in collocation._CACHE if k[0] == 43 and k[4] and not k[1]]
+    assert keys and collocation._CACHE[keys[0]]._warm is not None
+    assert sol.kernel_load_time > 0.0 and sol.success
+
+
 def test_the_warm_started_solver_is_not_built_without_the_time_for_it():
     """A back-off round re-solves an answer warm-started; that IPOPT solver is built at its first
     use (0.1-1.3 s, not interruptible): not when the budget left cannot pay for it (the cold
