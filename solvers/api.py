@@ -443,7 +443,8 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
 
 def _begins_with_collocation(prob, method, guess, warm_start) -> bool:
     """Whether the route of ``method`` for ``prob`` begins with a collocation solve, whose NLPs
-    ``solve`` then builds before its clock starts: collocation itself; any route with cones;
+    ``solve`` then builds before its clock starts: collocation itself; ``auto`` and ``indirect``
+    with cones (per-axis bound);
     ``auto`` for a pointing target, and for a full-attitude problem that neither a given
     ``guess``, the indirect multi-start of a p-norm bound with p ≤ 2, nor a warm start covering
     it goes before (a rate limit, unequal bounds, ``warm_start=None``, ...). Measured (a new
@@ -451,8 +452,13 @@ def _begins_with_collocation(prob, method, guess, warm_start) -> bool:
     slews, as building its NLPs took the budget (status 3)."""
     if method == "eigenaxis":
         return False
-    if method == "collocation" or prob.cones:
+    if method == "collocation":
         return True
+    if prob.cones:
+        # auto and the indirect route (which refuses a p-norm bound with cones, before any
+        # solve) begin with collocation; with an opt-in cone warm start its candidates come
+        # first, and collocation after them where they fail (4 in 10)
+        return method == "auto" or math.isinf(prob.torque_norm)
     if method != "auto":
         return False
     if prob.is_pointing:
@@ -462,9 +468,14 @@ def _begins_with_collocation(prob, method, guess, warm_start) -> bool:
     from . import warmstart
     try:
         model = warmstart.resolve(warm_start, prob)
-        return model is None or bool(model.covers(prob))
     except Exception:   # noqa: BLE001 - a model that cannot be read: the solve reports it
         return False
+    if model is None:
+        return True
+    try:
+        return bool(model.covers(prob))
+    except Exception:   # noqa: BLE001 - the warm start records the error, and collocation runs
+        return True
 
 
 def _prebuild_nlps(prob, col_opts) -> float:
@@ -1016,12 +1027,15 @@ def _warm_start(prob, method, warm_start, options, split=False):
     total = float(options.get("time_budget", 20.0))
     budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET if prob.cones else WARM_BUDGET)), total)
     opts = {k: v for k, v in options.items() if k != "warm_budget"}
+    skipped = []
     if prob.cones:
-        sol = _solve_learned_cones(prob, g, opts, budget)
+        sol = _solve_learned_cones(prob, g, opts, budget, errors=skipped)
     else:
         sol = _guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}
+    if skipped:     # candidates the model could not make (the others were tried)
+        info["error"] = "; ".join(skipped)[:300]
     if predicted_tf is not None:
         info["predicted_tf"] = float(predicted_tf)
     if t_warm:
@@ -1196,16 +1210,18 @@ def _cone_neighbour_starts(prob) -> list:
         return []
 
 
-def _solve_learned_cones(prob, g, options, budget, cap=None) -> SlewSolution:
+def _solve_learned_cones(prob, g, options, budget, cap=None, errors=None) -> SlewSolution:
     """A guess for a problem with keep-out cones, tried candidate by candidate: with
     ``touches``, the touch-point extremal (``cone_touch.solve_touch_guess``, switch-time
     formulation first when the guess has a structure); without, the extremal of the problem
-    without cones, accepted only if its path clears every cone (certified)."""
+    without cones, accepted only if its path clears every cone (certified). A deferred
+    candidate that cannot be made (a model's error) is skipped, and its error added to
+    ``errors`` (a list) where given."""
     from .cone_touch import solve_touch_guess
     t0 = time.perf_counter()
     tried, last = 0, None
     nit = nfev = 0
-    skipped = []        # deferred candidates that could not be made (a model's error): skipped
+    skipped = [] if errors is None else errors
     for cand in g.iter_all(errors=skipped):
         left = min(budget - (time.perf_counter() - t0), CONE_CANDIDATE_CAP if cap is None else cap)
         if left <= 0.0:

@@ -116,8 +116,9 @@ def _ensure_kind(kind: tuple) -> float:
 def load_kernels(problems=None) -> float:
     """Load the compiled kernels before the first time-critical solve of a process.
 
-    ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load, and for
-    pointing and cone problems the collocation NLPs of their default mesh and cone count
+    ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load, and, where
+    ``solve(problem)``'s route begins with collocation (pointing and cone problems, full-attitude
+    ones no shipped warm start covers), the collocation NLPs of their default mesh and cone count
     (``collocation.prebuild_nlps``); ``None`` loads every kind. Returns the seconds spent.
     ``solve`` does this by itself before its clock starts, so calling it is needed only to take
     that time at start-up rather than in the first solve (0.2–1.8 s a kind once numba's cache
@@ -134,6 +135,8 @@ def load_kernels(problems=None) -> float:
         kinds = [problem_kind(p) for p in probs]
     total = sum(_ensure_kind(kind) for kind in dict.fromkeys(kinds))
     if problems is not None:
+        from .api import _begins_with_collocation
         from .collocation import prebuild_nlps
-        total += sum(prebuild_nlps(p) for p in probs if p.cones or p.is_pointing)
+        # the NLPs that solve(p) (auto, the default warm start) builds before its clock
+        total += sum(prebuild_nlps(p) for p in probs if _begins_with_collocation(p, "auto", None, "default"))
     return total

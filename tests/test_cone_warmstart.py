@@ -313,6 +313,15 @@ def test_the_tables_nearest_rows_are_the_brute_force_ones():
     from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
     small = ConeNearestNeighbourModel({key: v[:3] for key, v in table.a.items()})
     assert sorted(small.nearest(table.a["X"][1], 10)) == [0, 1, 2] and small.nearest(table.a["X"][1], 10)[0] == 1
+    # non-finite features: a clear error, never the last row of the table
+    x = table.a["X"][1].copy()
+    x[4] = np.nan
+    with pytest.raises(ValueError, match="^x: expected 24 finite canonical features"):
+        small.nearest(x)
+    bad = {key: v[:3].copy() for key, v in table.a.items()}
+    bad["X"][2, 7] = np.inf
+    with pytest.raises(ValueError, match="^X, Z, T, T_ref: the features and costates must be finite"):
+        ConeNearestNeighbourModel(bad)
 
 
 def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):
@@ -353,8 +362,15 @@ def test_a_deferred_candidate_that_fails_is_skipped(monkeypatch):
     import solvers.cone_touch as ct
     monkeypatch.setattr(ct, "solve_touch_guess", lambda prob, cand, **kw: api.SlewSolution(
         False, api.STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
-    sol = api._solve_learned_cones(TOUCH, g, {}, budget=5.0)
+    skipped = []
+    sol = api._solve_learned_cones(TOUCH, g, {}, budget=5.0, errors=skipped)
     assert not sol.success and sol.n_candidates == 4     # the 4 neighbours; the network skipped
+    assert len(skipped) == 1 and "FloatingPointError: the network broke" in skipped[0]   # recorded once
+    # solve records it in warm_start (as it did when the whole guess was made up front)
+    monkeypatch.setattr(api, "_guess_alone", lambda prob, cand, *a, **k: api.SlewSolution(
+        False, api.STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
+    info = solve(TOUCH, warm_start=m, time_budget=30.0).warm_start
+    assert info["covered"] and not info["succeeded"] and "the network broke" in info["error"]
     sol = api._solve_learned_cones(TOUCH, api.Guess(g.costate0, g.tf, source="x", candidates=[broken]), {}, 5.0)
     assert sol.n_candidates == 1
 

@@ -216,6 +216,24 @@ def test_routes_that_begin_with_collocation_have_their_nlps_built_before_the_clo
     assert not api._begins_with_collocation(rated, "indirect", None, None)
     assert not api._begins_with_collocation(rated, "eigenaxis", None, None)
     assert not api._begins_with_collocation(full, "auto", solvers.Guess(np.ones(7), 2.0), None)
+    cones = rated.replace(rate_max=None, cones=[{"axis": [0.0, 0.0, 1.0], "half_angle": 0.2}])
+    assert api._begins_with_collocation(cones, "indirect", None, None)
+    assert not api._begins_with_collocation(cones.replace(torque_norm=2.0), "indirect", None, None)   # refused
+
+    class Broken:        # a user model whose coverage test fails: the classical route (collocation)
+        def covers(self, p):
+            raise RuntimeError("no")
+
+        def guess(self, p):
+            raise RuntimeError("no")
+    assert api._begins_with_collocation(full, "auto", None, Broken())
+    # load_kernels takes the same NLPs at start-up
+    from solvers import collocation as col
+    seen = []
+    monkeypatch.setattr(col, "prebuild_nlps", lambda p, *a, **k: seen.append(p) or 0.0)
+    solvers.load_kernels([full, rated])
+    assert seen == [rated]
+    monkeypatch.undo()
     built = []
     monkeypatch.setattr(api, "_prebuild_nlps", lambda prob, col_opts: built.append(prob) or 0.0)
     solvers.solve(full, time_budget=5.0)

@@ -10,7 +10,9 @@ costates (on 40 held-out problems with exact answers: with the true switching st
 touches, 34 of the network's costate guesses converge; with its own, 10). So the candidates are, in order: the solutions of the
 ``n_neighbours`` nearest problems of the table (``cone_nearest``, mapped to this problem's
 axes and cones), then the network's guess and its variants (``cone_model``). The solver tries
-them one by one, each under a short time cap (``solvers.api.CONE_CANDIDATE_CAP``).
+them one by one, each under a short time cap (``solvers.api.CONE_CANDIDATE_CAP``). Only the
+nearest solution's guess is made up front; the later candidates are deferred (``Guess.iter_all``:
+made when the solver reaches them, so such a guess is not picklable; ``all()`` gives the plain list).
 
 Files: the network ``pointing-cones.npz`` and the table ``pointing-cones.nn.npz`` next to it
 (both made by ``slew train --config training/warmstart/configs/pointing-cones.yaml --export``).
@@ -115,18 +117,24 @@ class _NetworkParts:
     def __init__(self, network, problem, cf):
         self.network, self.problem, self.cf = network, problem, cf
         self._parts = None
+        self._error = None
 
     def _make(self):
-        if self._parts is None:
-            parts = self.network.guess_from_form(self.problem, self.cf).all()
+        if self._parts is None and self._error is None:
+            try:
+                parts = self.network.guess_from_form(self.problem, self.cf).all()
+            except Exception as e:   # noqa: BLE001 - raised once (by the first part), remembered
+                self._error = e
+                raise
             for g in parts:
                 g.candidates = []
             self._parts = parts
         return self._parts
 
     def part(self, k):
-        """A deferred candidate: the network's ``k``-th part, or ``None`` if it has fewer."""
+        """A deferred candidate: the network's ``k``-th part, or ``None`` if it has fewer (or if
+        the network failed: its first part raised the error, to be recorded once)."""
         def make():
             parts = self._make()
-            return parts[k] if k < len(parts) else None
+            return parts[k] if parts is not None and k < len(parts) else None
         return make

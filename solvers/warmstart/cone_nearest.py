@@ -35,6 +35,10 @@ class ConeNearestNeighbourModel:
         self.a = {key: np.asarray(arrays[key], float) for key in ARRAYS}
         if self.a["X"].ndim != 2 or self.a["X"].shape[0] == 0:
             raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
+        a = self.a
+        if not (np.all(np.isfinite(a["X"])) and np.all(np.isfinite(a["Z"])) and np.all(a["T"] > 0)
+                and np.all(a["T_ref"] > 0) and np.all(np.isfinite(a["T"])) and np.all(np.isfinite(a["T_ref"]))):
+            raise ValueError("X, Z, T, T_ref: the features and costates must be finite and the times positive")
         self.k = int(k)
         self.domain = domain or {}
         self.name = name
@@ -72,8 +76,10 @@ class ConeNearestNeighbourModel:
         """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the
         canonical features ``x`` (standardised Euclidean distance), nearest first."""
         k = max(1, min(int(k or self.k), self.a["X"].shape[0]))
-        x = np.asarray(x, float) / self.scale
-        return _k.nearest_rows(self._XT, x, k, np.empty(k, dtype=np.int64))
+        x = np.asarray(x, float)
+        if x.shape != (self._XT.shape[0],) or not np.all(np.isfinite(x)):
+            raise ValueError(f"x: expected {self._XT.shape[0]} finite canonical features, got {x!r:.80}")
+        return _k.nearest_rows(self._XT, x / self.scale, k, np.empty(k, dtype=np.int64))
 
     def row_guess(self, problem, cf, j, rank=0) -> Guess:
         """The solution of table row ``j`` mapped to ``problem`` (canonical form ``cf``)."""

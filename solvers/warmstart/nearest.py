@@ -110,6 +110,12 @@ class NearestNeighbourModel:
     def covers(self, problem):
         return table_coverage(SlewProblem.from_dict(problem), unsupported_reason)
 
+    def nearest(self, x, k=None) -> np.ndarray:
+        """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the canonical
+        features ``x``, nearest first (the k-d tree: 11 features)."""
+        k = max(1, min(int(k or self.k), self.X.shape[0]))
+        return np.atleast_1d(self.tree.query(np.asarray(x, float) / self.scale, k=k)[1])
+
     def guess(self, problem, k=None) -> Guess:
         """The ``k`` (default: the table's) nearest solutions, as one guess and its candidates."""
         problem = SlewProblem.from_dict(problem)
