@@ -33,6 +33,15 @@ QUAT_REJECT_TOL = 1e-3
 # but not inside it by more than this (rad).
 CONE_FEASIBILITY_TOL = 1e-9
 
+# The range of problems the solvers are built for (beyond it the numerics break down: a p-norm
+# control law close to p = 1 underflows, huge p overflows; a body whose axes differ by more
+# than MAX_AXIS_SPREAD in J_i / u_max_i, or rates beyond MAX_RATE_TAU in units of
+# τ = sqrt(J_max / u_max), make the propagation stiff, seconds past any time budget). Such
+# problems are refused by name rather than crash or overrun inside compiled code.
+P_MIN, P_MAX = 1.05, 100.0
+MAX_AXIS_SPREAD = 1e3
+MAX_RATE_TAU = 100.0
+
 # A vector whose norm is within this of 1 is already unit to rounding and is kept
 # bit for bit, so that normalising is idempotent: ``from_dict(p.to_dict()) == p``
 # (dividing a unit vector by its computed norm again can move it by an ulp).
@@ -44,10 +53,12 @@ FIELDS = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_
 
 def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=False):
     """Validate a finite float vector of ``length`` entries (scalar broadcast if allowed)."""
+    if _has_bool(value):
+        raise ValueError(f"{name}: expected numbers, got a boolean in {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected {length} numbers, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected {length} finite numbers, got {value!r:.120}") from None
     if arr.ndim == 0 and allow_scalar:
         arr = np.full(length, float(arr))
     if arr.shape != (length,):
@@ -58,11 +69,39 @@ def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=Fal
     if positive and np.any(arr <= 0.0):
         raise ValueError(f"{name}: all entries must be positive, got {arr.tolist()}")
     if unit:
-        n = float(np.linalg.norm(arr))
+        with np.errstate(over="ignore"):
+            n = float(np.linalg.norm(arr))
+        if not math.isfinite(n):
+            # the norm of finite entries near the float limit overflows: scale them first (a
+            # direction is a direction whatever its length)
+            arr = arr / float(np.max(np.abs(arr)))
+            n = float(np.linalg.norm(arr))
         if n < 1e-12:
             raise ValueError(f"{name}: zero-length axis cannot be normalised")
         arr = _normalised(arr, n)
     return arr.copy()
+
+
+def _has_bool(value) -> bool:
+    """Whether ``value`` is or holds a boolean (JSON ``true``), which numpy would take as 1."""
+    if isinstance(value, (bool, np.bool_)):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype == bool
+    if isinstance(value, (list, tuple)):
+        return any(_has_bool(v) for v in value)
+    return False
+
+
+def _number(name, value, what="a number"):
+    """``value`` as a float: ``ValueError`` naming ``name`` for booleans, non-numbers and
+    integers too large for a float."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected {what}, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected {what}, got {value!r:.120}") from None
 
 
 def _normalised(arr, n):
@@ -107,14 +146,20 @@ def _torque_norm(value):
             value = float(v)
         except ValueError:
             raise ValueError(f"torque_norm: expected 'inf' or a number p > 1, got {value!r}") from None
-    try:
-        p = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"torque_norm: expected 'inf' or a number p > 1, got {value!r}") from None
+    p = _number("torque_norm", value, "'inf' or a number p > 1")
     if math.isnan(p):
         raise ValueError("torque_norm: must be 'inf' or a number p > 1, got nan")
+    if math.isinf(p) and p > 0:
+        return math.inf
     if not p > 1.0:
         raise ValueError(f"torque_norm: p must be > 1 (p = 1 has no unique optimal control), got {p:g}")
+    if p < P_MIN:
+        # the control law's exponent 1/(p - 1) underflows the torque direction to zero
+        raise ValueError(f"torque_norm: p = {p:g} is too close to 1 for the solvers (the control law "
+                         f"|S|^(1/(p-1)) underflows); give {P_MIN:g} ≤ p ≤ {P_MAX:g}, or 'inf'")
+    if p > P_MAX:
+        raise ValueError(f"torque_norm: p = {p:g} is beyond what the solvers handle ({P_MIN:g} ≤ p ≤ {P_MAX:g}); "
+                         "for a bound close to the per-axis one give 'inf', its limit as p grows")
     return p
 
 
@@ -133,10 +178,7 @@ class Cone:
         a = _vector(f"{_field}.axis", axis, 3, unit=True)
         if half_angle_deg is not None:
             name = f"{_field}.half_angle_deg"
-            try:
-                deg = float(half_angle_deg)
-            except (TypeError, ValueError):
-                raise ValueError(f"{name}: expected a number, got {half_angle_deg!r}") from None
+            deg = _number(name, half_angle_deg)
             if not math.isfinite(deg):
                 raise ValueError(f"{name}: must be finite, got {deg}")
             if not 0.0 < deg < 180.0:
@@ -144,10 +186,7 @@ class Cone:
             ha = math.radians(deg)
         else:
             name = f"{_field}.half_angle"
-            try:
-                ha = float(half_angle)
-            except (TypeError, ValueError):
-                raise ValueError(f"{name}: expected a number (rad), got {half_angle!r}") from None
+            ha = _number(name, half_angle, "a number (rad)")
             if not math.isfinite(ha):
                 raise ValueError(f"{name}: must be finite, got {ha}")
             if not 0.0 < ha < math.pi:
@@ -202,7 +241,7 @@ class SlewProblem:
         Principal moments of inertia ``J1, J2, J3`` (any consistent units).
     torque_max : number or 3 positive numbers
         Torque bound per axis (per-axis bound) or the radius of the p-norm ball.
-    torque_norm : ``"inf"`` (default) or number ``p > 1``
+    torque_norm : ``"inf"`` (default) or number ``P_MIN ≤ p ≤ P_MAX`` (1.05 to 100)
         ``"inf"``: ``|u_i| ≤ torque_max_i``. ``p``: ``‖u / torque_max‖_p ≤ 1``
         (with equal ``torque_max`` this is ``‖u‖_p ≤ torque_max``; 2 is the ball).
     q0 : unit quaternion, default identity
@@ -236,6 +275,16 @@ class SlewProblem:
         self.q0 = _unit_quaternion("q0", q0)
         self.omega0 = _vector("omega0", omega0, 3)
         self.omegaf = _vector("omegaf", omegaf, 3)
+        accel = self.torque_max / self.inertia          # per-axis acceleration bound
+        if float(accel.max() / accel.min()) > MAX_AXIS_SPREAD:
+            raise ValueError(f"inertia, torque_max: the axes' acceleration bounds u_max,i / J_i differ by a factor "
+                             f"{float(accel.max() / accel.min()):.3g}, beyond the {MAX_AXIS_SPREAD:g} the solvers are "
+                             f"built for (inertia {self.inertia.tolist()}, torque_max {self.torque_max.tolist()})")
+        tau = math.sqrt(float(self.inertia.max()) / float(self.torque_max.max()))
+        for name, w in (("omega0", self.omega0), ("omegaf", self.omegaf)):
+            if float(np.max(np.abs(w))) * tau > MAX_RATE_TAU:
+                raise ValueError(f"{name}: rates up to {MAX_RATE_TAU:g} / τ are supported (τ = sqrt(J_max / u_max) "
+                                 f"= {tau:.4g}, i.e. |ω| ≤ {MAX_RATE_TAU / tau:.4g}), got {w.tolist()}")
         self.sensor_axis = _vector("sensor_axis", sensor_axis, 3, unit=True)
         if (qf is None) == (sensor_target is None):
             raise ValueError("qf, sensor_target: give exactly one target, a full attitude qf "
@@ -344,6 +393,8 @@ class SlewProblem:
     def from_task_array(cls, t) -> "SlewProblem":
         """Inverse of ``to_task_array``."""
         t = np.asarray(t, dtype=float)
+        if t.ndim != 1 or t.shape[0] < _t.T_CONES:
+            raise ValueError(f"t: expected a task array of at least {_t.T_CONES} numbers, got shape {t.shape}")
         n = int(t[_t.T_NCONES])
         cones = []
         for k in range(n):
@@ -401,12 +452,20 @@ class SlewProblem:
             d = json.loads(text)
         except json.JSONDecodeError as e:
             raise ValueError(f"problem: not valid JSON ({e})") from None
+        except RecursionError:
+            raise ValueError("problem: not valid JSON (nested too deeply)") from None
         return cls.from_dict(d)
 
     @classmethod
     def load(cls, path) -> "SlewProblem":
-        with open(path) as f:
-            return cls.from_json(f.read())
+        try:
+            with open(path, encoding="utf-8") as f:
+                text = f.read()
+        except FileNotFoundError:
+            raise
+        except (OSError, UnicodeDecodeError) as e:
+            raise ValueError(f"problem: cannot read {str(path)!r} ({type(e).__name__}: {e})"[:300]) from None
+        return cls.from_json(text)
 
     def save(self, path) -> None:
         with open(path, "w") as f:

@@ -87,7 +87,7 @@ class TaskDistribution:
     ``symmetric_prob``      ``0.0``                asymmetric mode: probability that the body
                                                    is symmetric ``(1, 1, 1)`` instead
     ``torque_max``          ``(1, 1, 1)``          torque bound (one number or three)
-    ``torque_norm``         ``"inf"``              ``"inf"`` per-axis bound, or ``p > 1``
+    ``torque_norm``         ``"inf"``              ``"inf"`` per-axis bound, or ``1.05 ≤ p ≤ 100``
     ``sensor_axis``         ``(1, 0, 0)``          body sensor axis
     ``n_cones``             ``(0, 0)``             number of keep-out cones, uniform integer
     ``cone_half_angle_deg`` ``(10, 30)``           cone half-angle range (deg)
@@ -187,17 +187,10 @@ class TaskDistribution:
 
     @staticmethod
     def _check_norm(value):
-        if isinstance(value, str) and value.strip().lower() in ("inf", "infinity", "per-axis"):
-            return "inf"
-        try:
-            p = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"torque_norm: expected 'inf' or a number p > 1, got {value!r}") from None
-        if math.isinf(p) and p > 0:
-            return "inf"
-        if not p > 1.0:
-            raise ValueError(f"torque_norm: p must be > 1, got {value!r}")
-        return p
+        # the problem's own check (the same accepted values and messages, its supported range)
+        from .problem import _torque_norm
+        p = _torque_norm(value)
+        return "inf" if math.isinf(p) else p
 
     # ------------------------------------------------------------------ families
     @classmethod

@@ -397,6 +397,7 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
                 raise ValueError(f"{key}: must be a positive number of seconds, got {v!r}")
     if options.get("candidate_cap") is not None:
         options["candidate_cap"] = _checked_cap(options["candidate_cap"])
+    _check_options(options)
     use_table = options.pop("singular_table", True)
     if not isinstance(use_table, bool):
         raise ValueError(f"singular_table: expected True or False, got {use_table!r}")
@@ -423,6 +424,7 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     col_opts = options.pop("collocation", None) or {}
     if not isinstance(col_opts, dict):
         raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
+    _check_collocation_options(col_opts)
     if method != "eigenaxis":
         # an infeasible problem is an input error, found before any loading; the grid test
         # (about 0.1 s for three mutually overlapping cones) is remembered, not repeated inside
@@ -439,6 +441,71 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
                     check_local, use_table, cone_challenge)
     sol.kernel_load_time = load
     return sol
+
+
+MAX_SEGMENTS = 1000          # multiple shooting's segments (each a column block of the Jacobian)
+MAX_DENSE_STEPS = 1_000_000  # n_dense: steps of the dense record
+
+
+def _int_option(options, key, lo, hi):
+    if key in options:
+        v = options[key]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+            raise ValueError(f"{key}: expected an integer from {lo} to {hi:,}, got {v!r:.80}")
+
+
+def _positive_option(options, key):
+    if key in options:
+        v = options[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (
+                math.isfinite(v) and v > 0):
+            raise ValueError(f"{key}: expected a positive finite number, got {v!r:.80}")
+
+
+def _check_options(options) -> None:
+    """``solve``'s numeric options, checked whatever route runs (a route that does not use one
+    must not let a bad value through unnoticed): ``ValueError`` naming the option."""
+    _int_option(options, "segments", 1, MAX_SEGMENTS)
+    _int_option(options, "n_dense", 1, MAX_DENSE_STEPS)
+    for key in ("max_candidates", "min_candidates", "enough"):
+        _int_option(options, key, 1, 10_000)
+    if "seed" in options and options["seed"] is not None:
+        _int_option(options, "seed", 0, 2 ** 63 - 1)
+    for key in ("eps_min", "rtol", "atol"):
+        _positive_option(options, key)
+    if "tols" in options and options["tols"] is not None:
+        _check_tols(options["tols"])
+
+
+def _check_tols(tols) -> None:
+    from . import collocation
+    from .verify import DEFAULT_TOLS
+    if not isinstance(tols, dict):
+        raise ValueError(f"tols: expected a dict of verification tolerances, got {tols!r:.80}")
+    known = set(DEFAULT_TOLS) | set(collocation.DEFAULT_TOLS)
+    unknown = set(tols) - known
+    if unknown:
+        raise ValueError(f"tols: unknown check(s) {sorted(map(str, unknown))}; known: {sorted(known)}")
+    for k, v in tols.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (
+                math.isfinite(v) or v == math.inf) or (math.isfinite(v) and v < 0.0 and k != "normality"):
+            raise ValueError(f"tols[{k!r}]: expected a finite number ≥ 0, got {v!r:.80}")
+
+
+def _check_collocation_options(col_opts) -> None:
+    """The ``collocation`` dict: ``solve_collocation``'s keyword options only (``problem`` and
+    ``guess`` come from ``solve`` itself), and its mesh checked before any NLP is built."""
+    from . import collocation
+    known = set(collocation.SOLVE_OPTIONS) - {"guess"}
+    unknown = set(col_opts) - known
+    if unknown:
+        raise ValueError(f"collocation: unknown option(s) {sorted(map(str, unknown))}; known: {sorted(known)}")
+    n = col_opts.get("n_intervals")
+    if n is not None:
+        for N in (n if isinstance(n, (list, tuple)) else [n]):
+            collocation._check_intervals(N, in_list=isinstance(n, (list, tuple)))
+    if col_opts.get("tols") is not None:
+        _check_tols(col_opts["tols"])
 
 
 def _begins_with_collocation(prob, method, guess, warm_start) -> bool:

@@ -157,6 +157,7 @@ targets inside a cone are rejected by ``SlewProblem`` itself.
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import time
 from collections import OrderedDict
@@ -1402,6 +1403,9 @@ DEFAULT_INTERVALS_CONES = 80
 COARSE_DIVISOR_CONES = 8
 
 
+MAX_INTERVALS = 5000     # about 80,000 NLP variables; 10**6 exhausted memory in CasADi
+
+
 def _check_intervals(N, in_list=False) -> int:
     """``N`` as an int, or ``ValueError`` naming ``n_intervals``."""
     if isinstance(N, bool) or not isinstance(N, (int, np.integer)):
@@ -1409,6 +1413,9 @@ def _check_intervals(N, in_list=False) -> int:
                          f"got {N!r}")
     if N < 2:
         raise ValueError(f"n_intervals: must be at least 2, got {N}")
+    if N > MAX_INTERVALS:
+        raise ValueError(f"n_intervals: at most {MAX_INTERVALS:,} (an NLP of {N:,} intervals would not fit in "
+                         f"memory), got {N:,}")
     return int(N)
 
 
@@ -1585,6 +1592,10 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         sol = finer
     sol.wall_time = time.perf_counter() - t_start
     return sol
+
+
+# solve_collocation's keyword options (``solve``'s ``collocation`` dict is checked against them)
+SOLVE_OPTIONS = tuple(inspect.signature(solve_collocation).parameters)[1:]
 
 
 def _grids(N, cones, coarse):

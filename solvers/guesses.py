@@ -112,7 +112,10 @@ class Guess:
                         memo[k] = made
                 except Exception as e:      # noqa: BLE001 - any failure of a model's code
                     if errors is None:
-                        raise
+                        if isinstance(e, ValueError):
+                            raise
+                        raise ValueError(f"guess.candidates[{k}]: the deferred candidate raised "
+                                         f"{type(e).__name__}: {e}"[:300]) from e
                     errors.append(f"candidates[{k}]: {type(e).__name__}: {e}"[:300])
                     memo[k] = None
                 c = memo[k]

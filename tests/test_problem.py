@@ -547,3 +547,66 @@ def test_cone_object():
     assert c.margin([0, 0, 5]) == pytest.approx(-math.radians(30), abs=1e-15)
     assert c.margin([1, 0, 0]) == pytest.approx(math.radians(60), abs=1e-15)
     assert c.margin([0, 0, -1]) == pytest.approx(math.radians(150), abs=1e-15)
+
+
+# ----------------------------------------------------------------- found by a fuzz run (session 28)
+def test_p_norms_outside_the_solvers_range_are_refused_by_name():
+    # p = 1.01 crashed inside the compiled control law (its exponent 1/(p-1) underflows), 1e6
+    # in the eigenaxis guess (a ** p overflows): refused with the supported range
+    for p in (1.0001, 1.01, 1.04):
+        with pytest.raises(ValueError, match=r"^torque_norm: p = .* too close to 1 .*1\.05 ≤ p ≤ 100"):
+            SlewProblem([1.0, 1.0, 1.0], torque_norm=p, qf=[0.0, 1.0, 0.0, 0.0])
+    for p in (200.0, 1e6, 1e308):
+        with pytest.raises(ValueError, match=r"^torque_norm: p = .* beyond .* give 'inf'"):
+            SlewProblem([1.0, 1.0, 1.0], torque_norm=p, qf=[0.0, 1.0, 0.0, 0.0])
+    assert SlewProblem([1.0, 1.0, 1.0], torque_norm=1.05, qf=[0.0, 1.0, 0.0, 0.0]).torque_norm == 1.05
+    assert SlewProblem([1.0, 1.0, 1.0], torque_norm=100, qf=[0.0, 1.0, 0.0, 0.0]).torque_norm == 100.0
+    assert math.isinf(SlewProblem([1.0, 1.0, 1.0], torque_norm=float("inf"), qf=[0.0, 1.0, 0.0, 0.0]).torque_norm)
+
+
+def test_huge_direction_vectors_are_normalised_not_zeroed():
+    # their norm overflowed to inf and the direction became [0, 0, 0] (then "target equals the start")
+    p = SlewProblem([1.0, 1.0, 1.0], sensor_target=[1e308, 1e308, 1e308],
+                    cones=[{"axis": [0.0, 1e308, 0.0], "half_angle": 0.1}])
+    np.testing.assert_allclose(p.sensor_target, np.full(3, 1.0 / math.sqrt(3.0)), rtol=1e-15)
+    np.testing.assert_allclose(p.cones[0].axis, [0.0, 1.0, 0.0])
+
+
+def test_booleans_and_huge_integers_are_refused_by_name():
+    with pytest.raises(ValueError, match=r"^inertia: expected numbers, got a boolean"):
+        SlewProblem([True, 1.0, 1.0], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^inertia: expected 3 finite numbers"):
+        SlewProblem([10 ** 400, 1, 1], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^torque_norm: expected 'inf' or a number"):
+        SlewProblem([1.0, 1.0, 1.0], torque_norm=10 ** 400, qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^cones\[0\]\.half_angle: expected a number \(rad\), got True"):
+        SlewProblem.from_dict({"inertia": [1, 1, 1], "qf": [0, 1, 0, 0], "cones": [{"axis": [1, 0, 0], "half_angle": True}]})
+
+
+def test_bodies_and_rates_beyond_the_solvers_range_are_refused_by_name():
+    # a 1e6 spread of the axes' accelerations, or rates of 1e6 / τ, ran seconds past a time budget
+    with pytest.raises(ValueError, match=r"^inertia, torque_max: the axes' acceleration bounds .* 1\.5e\+06"):
+        SlewProblem([1e-6, 1.0, 1.5], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^inertia, torque_max: "):
+        SlewProblem([1.0, 1.0, 1.0], torque_max=[1.0, 1e-6, 1.0], qf=[0.0, 1.0, 0.0, 0.0])
+    SlewProblem([1e-2, 1.0, 10.0], qf=[0.0, 1.0, 0.0, 0.0])                  # 1e3: fine
+    with pytest.raises(ValueError, match=r"^inertia, torque_max: .* 1\.5e\+03, beyond the 1000"):
+        SlewProblem([1e-2, 1.0, 15.0], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^omega0: rates up to 100 / τ are supported"):
+        SlewProblem([1.0, 1.0, 1.0], omega0=[1e6, 0.0, 0.0], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^omegaf: rates up to 100 / τ"):
+        SlewProblem([4.0, 1.0, 1.0], omegaf=[0.0, 60.0, 0.0], qf=[0.0, 1.0, 0.0, 0.0])   # τ = 2
+    SlewProblem([4.0, 1.0, 1.0], omegaf=[0.0, 40.0, 0.0], qf=[0.0, 1.0, 0.0, 0.0])
+
+
+def test_unreadable_problem_files_are_clear_errors(tmp_path):
+    with pytest.raises(ValueError, match=r"^problem: cannot read .*IsADirectoryError"):
+        SlewProblem.load(tmp_path)
+    bad = tmp_path / "latin1.json"
+    bad.write_bytes(b'{"inertia": [1, 1, 1], "qf": [0, 1, 0, 0], "x": "\xe9"}')
+    with pytest.raises(ValueError, match=r"^problem: cannot read .*UnicodeDecodeError"):
+        SlewProblem.load(bad)
+    with pytest.raises(ValueError, match=r"^problem: not valid JSON \(nested too deeply\)"):
+        SlewProblem.from_json("[" * 50000 + "]" * 50000)
+    with pytest.raises(ValueError, match=r"^t: expected a task array"):
+        SlewProblem.from_task_array([1.0, 2.0])
