@@ -454,6 +454,8 @@ class SlewProblem:
             raise ValueError(f"problem: not valid JSON ({e})") from None
         except RecursionError:
             raise ValueError("problem: not valid JSON (nested too deeply)") from None
+        except ValueError as e:     # e.g. an integer literal beyond Python's digit limit
+            raise ValueError(f"problem: not valid JSON ({e})"[:300]) from None
         return cls.from_dict(d)
 
     @classmethod

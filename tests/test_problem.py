@@ -608,5 +608,7 @@ def test_unreadable_problem_files_are_clear_errors(tmp_path):
         SlewProblem.load(bad)
     with pytest.raises(ValueError, match=r"^problem: not valid JSON \(nested too deeply\)"):
         SlewProblem.from_json("[" * 50000 + "]" * 50000)
+    with pytest.raises(ValueError, match=r"^problem: not valid JSON \(.*digit"):
+        SlewProblem.from_json('{"inertia": [1' + "0" * 5000 + ', 1, 1], "qf": [1, 0, 0, 0]}')
     with pytest.raises(ValueError, match=r"^t: expected a task array"):
         SlewProblem.from_task_array([1.0, 2.0])
