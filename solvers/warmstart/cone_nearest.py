@@ -75,7 +75,10 @@ class ConeNearestNeighbourModel:
     def nearest(self, x, k=None) -> np.ndarray:
         """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the
         canonical features ``x`` (standardised Euclidean distance), nearest first."""
-        k = max(1, min(int(k or self.k), self.a["X"].shape[0]))
+        k = int(k or self.k)
+        if k < 1:
+            raise ValueError(f"k: need at least one neighbour, got {k}")
+        k = min(k, self.a["X"].shape[0])
         x = np.asarray(x, float)
         if x.shape != (self._XT.shape[0],) or not np.all(np.isfinite(x)):
             raise ValueError(f"x: expected {self._XT.shape[0]} finite canonical features, got {x!r:.80}")

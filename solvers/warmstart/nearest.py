@@ -113,7 +113,10 @@ class NearestNeighbourModel:
     def nearest(self, x, k=None) -> np.ndarray:
         """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the canonical
         features ``x``, nearest first (the k-d tree: 11 features)."""
-        k = max(1, min(int(k or self.k), self.X.shape[0]))
+        k = self.k if k is None else int(k)
+        if k < 1:
+            raise ValueError(f"k: need at least one neighbour, got {k}")
+        k = min(k, self.X.shape[0])
         return np.atleast_1d(self.tree.query(np.asarray(x, float) / self.scale, k=k)[1])
 
     def guess(self, problem, k=None) -> Guess:
@@ -123,11 +126,8 @@ class NearestNeighbourModel:
         if why:
             raise ValueError(f"problem not covered by {self.name}: {why}")
         cf = canonical_form(problem)
-        k = min(self.k if k is None else int(k), self.X.shape[0])
-        _, idx = self.tree.query(cf.x / self.scale, k=k)
-        idx = np.atleast_1d(idx)
         out = None
-        for rank, j in enumerate(idx):
+        for rank, j in enumerate(self.nearest(cf.x, k)):
             c0, tf, sw, uf = tabled_solution(problem, cf, self.T[j], self.T_eig[j], self.S[j], self.U[j], self.Z[j])
             g = Guess(c0, tf, sw, uf, source=f"nearest-neighbour[{rank}]")
             if out is None:
