@@ -491,3 +491,21 @@ def test_canonical_form_of_a_tie_and_its_eigenaxis_time():
     np.testing.assert_allclose(cf.x[7:10], [1.0, 0.5, 1.0])
     acc = 1.0 / max(0.5 / math.sqrt(2) / 1.0, 0.8 / math.sqrt(2) / 0.5)
     assert cf.T_eig == pytest.approx(2 * math.sqrt(th / acc), rel=1e-14)
+
+
+def test_the_final_time_gap_needs_a_second_guess_on_the_same_problem():
+    from training.warmstart.evaluate import summarise
+
+    def row(i, g, tf):
+        return {"index": i, "guess": g, "covered": True, "success": tf is not None, "exact": tf is not None,
+                "tf": tf, "nit": 3, "wall_time_s": 0.01}
+    alone = [row(0, "learned", 2.0), row(1, "learned", 3.0)]
+    s = summarise(alone)
+    # a guess alone is not "at best" against itself: nothing is measured
+    assert s["gap_problems"] == 0 and math.isnan(s["learned"]["gap_median"])
+    assert math.isnan(s["learned"]["share_at_best"])
+    # with a second guess on problem 0 (faster by 1 %) and only learned on problem 1
+    s = summarise(alone + [row(0, "eigenaxis", 2.0 / 1.01)])
+    assert s["gap_problems"] == 1
+    assert s["learned"]["gap_median"] == pytest.approx(0.01)
+    assert s["learned"]["share_at_best"] == 0.0 and s["eigenaxis"]["share_at_best"] == 1.0

@@ -298,7 +298,8 @@ def summarise(rows) -> dict:
     for r in rows:
         ran.setdefault(r["index"], set()).add(r["guess"])
     width = max((len(v) for v in ran.values()), default=0)
-    full = {i for i, v in ran.items() if len(v) == width}
+    # with one guess a problem, each would be "at best" against itself: no gap is measured
+    full = {i for i, v in ran.items() if len(v) == width} if width >= 2 else set()
     out = {"gap_problems": len(full)}
     for g in GUESSES:
         rs = [r for r in rows if r["guess"] == g and r.get("covered")]
@@ -354,8 +355,13 @@ def markdown(s) -> str:
         at = f"{100 * r['share_at_best']:.1f} %" if r['share_at_best'] == r['share_at_best'] else "–"
         lines.append(f"| {g} | {r['n']} | {conv} | {nit} | {1e3 * r['time_median_s']:.1f} ms | "
                      f"{1e3 * r['time_p95_s']:.1f} ms | {1e3 * r['time_median_converged_s']:.1f} ms | {gap} | {at} |")
-    lines += ["", f"The final-time gap is measured on the {s.get('gap_problems', 0)} problems where every guess ran, "
-                  "against the fastest exact extremal any of them found."]
+    if s.get("gap_problems", 0):
+        lines += ["", f"The final-time gap is measured on the {s['gap_problems']} problems where every guess ran, "
+                      "against the fastest exact extremal any of them found."]
+    else:
+        lines += ["", "No final-time gap is measured: only one guess ran on each problem, and a guess is not "
+                      "compared with itself (`--baseline-n` runs the baselines, `solve` without a model "
+                      "among them, on a subsample)."]
     if s["inference_s_median"] == s["inference_s_median"]:
         what = s.get("inference_measures", "canonical form + network")
         lines += ["", f"Inference ({what}; numba and numpy, no torch): median {1e6 * s['inference_s_median']:.1f} µs per problem."]
