@@ -36,6 +36,9 @@ takes the start sensor direction onto the target, applied to ``q0``.
 from __future__ import annotations
 
 import math
+import threading
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Optional
 
@@ -48,6 +51,55 @@ from .core.pointing import pointing_terminal
 
 NY = af.NY
 
+MAX_STEPS = 200_000
+# A propagation is one compiled call that cannot look at the clock. Inside a solve with a time
+# budget (``propagation_deadline``), a propagation that is not recording an answer gets only
+# the steps the time left pays for, at the measured cost of a step (``_STEP_COST``), and never
+# fewer than ``MIN_STEPS``: a stiff body (axes' acceleration bounds 1,000 apart) needs 20,000+
+# steps of ~20 µs with sensitivities, and one such call had ended a 0.05 s solve 0.6 s late
+MIN_STEPS = 200
+_DEADLINE = threading.local()
+# s a step, by the number of sensitivity columns, measured on this machine as flows run (the
+# first values are this machine's at the time of writing, 2026-11-24: DOP853, 14 states)
+_STEP_COST = {0: 6.5e-6, 6: 2.0e-5, 7: 2.2e-5}
+
+
+@contextmanager
+def propagation_deadline(deadline):
+    """Within the block, on this thread, propagations stop where the steps left before
+    ``deadline`` (a ``time.perf_counter()`` value) run out; nested blocks keep the earlier one."""
+    prev = getattr(_DEADLINE, "t", math.inf)
+    _DEADLINE.t = min(prev, float(deadline))
+    try:
+        yield
+    finally:
+        _DEADLINE.t = prev
+
+
+def _step_cost(m):
+    c = _STEP_COST.get(m)
+    return c if c is not None else 6.5e-6 + 2.2e-6 * m
+
+
+def step_allowance(m, record=0):
+    """``(max_steps, capped)``: the steps a propagation with ``m`` sensitivity columns may take
+    before the deadline of ``propagation_deadline``; a recording run (an answer's dense
+    trajectory) is not capped."""
+    dl = getattr(_DEADLINE, "t", math.inf)
+    if record or math.isinf(dl):
+        return MAX_STEPS, False
+    n = (dl - time.perf_counter()) / _step_cost(m)
+    if n >= MAX_STEPS:
+        return MAX_STEPS, False
+    return max(MIN_STEPS, int(n)), True
+
+
+def _learn_step_cost(m, seconds, steps):
+    if steps >= 200:        # long enough for the timer; a moving average across calls
+        old = _STEP_COST.get(m)
+        c = seconds / steps
+        _STEP_COST[m] = c if old is None else 0.7 * old + 0.3 * c
+
 
 def quat_left_matrix(q):
     """``Q(q)`` with ``q ⊗ p = Q(q) p``."""
@@ -56,6 +108,16 @@ def quat_left_matrix(q):
                      [q1, q0, -q3, q2],
                      [q2, q3, q0, -q1],
                      [q3, -q2, q1, q0]])
+
+
+# a status of ``_run`` beside ``core.attitude_flow``'s: the steps the deadline left ran out
+FLOW_DEADLINE = 100
+
+
+def flow_failure(status) -> str:
+    if status == FLOW_DEADLINE:
+        return "the time budget ran out during a propagation"
+    return f"propagation failed (status {status})"
 
 
 @dataclass
@@ -193,10 +255,15 @@ class AttitudeBVP:
         sw_t = np.empty(self.max_switches + 1)
         sw_a = np.empty(self.max_switches + 1, dtype=np.int64)
         h0 = min(0.05, duration) if duration > 0 else 0.0
+        max_steps, capped = step_allowance(m, record)
+        t0 = time.perf_counter()
         Y, s_end, n_rec, n_sw, steps, status = af.flow(
             Y0, float(duration), m, self.J, self.umax, self.mode, self.p, self.eps, signs,
-            self.rtol, self.atol, h0, 200000, self.max_switches, rec_t, rec_Y, rec_s, sw_t, sw_a,
+            self.rtol, self.atol, h0, max_steps, self.max_switches, rec_t, rec_Y, rec_s, sw_t, sw_a,
             self.pen, detect, hmax)
+        _learn_step_cost(m, time.perf_counter() - t0, steps)
+        if capped and status == af.FLOW_MAX_STEPS:
+            status = FLOW_DEADLINE
         return Y, s_end, n_rec, n_sw, steps, status, rec_t, rec_Y, rec_s, sw_t, sw_a, signs
 
     def flow(self, y0, duration, Phi0):
@@ -209,7 +276,7 @@ class AttitudeBVP:
         Phi = Y[NY:].reshape(NY, -1) if Phi0 is not None else None
         u, _ = af.control(y, self.J, self.umax, self.mode, self.p, self.eps, s_end)
         f = af.ext_rhs(y, u, self.J)
-        msg = "" if ok else f"propagation failed (status {status})"
+        msg = "" if ok else flow_failure(status)
         return FlowOut(y, Phi, f, ok, msg, s_end, n_sw, steps)
 
     def terminal(self, y, T):
