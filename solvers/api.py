@@ -54,7 +54,8 @@ from typing import Optional, Tuple
 import numpy as np
 
 from slew_env import SlewProblem
-from .attitude_bvp import AttitudeBVP, propagation_deadline
+from .attitude_bvp import AttitudeBVP
+from .deadline import propagation_deadline
 from .blas_threads import single_threaded_blas
 from .kernel_loading import ensure_kernels
 from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, symmetric_images
@@ -437,9 +438,10 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     if _begins_with_collocation(prob, method, guess, warm_start):
         # so are the collocation NLPs of routes that begin with collocation (not interruptible)
         load += _prebuild_nlps(prob, col_opts)
-    # no propagation runs past the budget's end by more than a few ms (``attitude_bvp.step_allowance``)
-    whole = float(options.get("time_budget", 60.0 if method == "collocation" else 20.0)) + reserved
-    with propagation_deadline(time.perf_counter() + whole):
+    # no propagation runs past the route's budget by more than a few ms, nor a line search
+    # (``solvers.deadline``); the eigenaxis fallback's reserve stays its own (it runs no capped code)
+    route_budget = float(options.get("time_budget", 60.0 if method == "collocation" else 20.0))
+    with propagation_deadline(time.perf_counter() + route_budget):
         sol = _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, reserved,
                         check_local, use_table, cone_challenge)
     sol.kernel_load_time = load

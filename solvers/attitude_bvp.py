@@ -36,9 +36,7 @@ takes the start sensor direction onto the target, applied to ``q0``.
 from __future__ import annotations
 
 import math
-import threading
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Optional
 
@@ -48,32 +46,21 @@ from slew_env.core.cones import perpendicular_basis
 from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
 from .core import attitude_flow as af
 from .core.pointing import pointing_terminal
+from .deadline import current as _current_deadline
+from .deadline import propagation_deadline  # noqa: F401 - re-exported: the solve's deadline
 
 NY = af.NY
 
 MAX_STEPS = 200_000
 # A propagation is one compiled call that cannot look at the clock. Inside a solve with a time
-# budget (``propagation_deadline``), a propagation that is not recording an answer gets only
+# budget (``solvers.deadline.propagation_deadline``), a propagation that is not recording an answer gets only
 # the steps the time left pays for, at the measured cost of a step (``_STEP_COST``), and never
 # fewer than ``MIN_STEPS``: a stiff body (axes' acceleration bounds 1,000 apart) needs 20,000+
 # steps of ~20 µs with sensitivities, and one such call had ended a 0.05 s solve 0.6 s late
 MIN_STEPS = 200
-_DEADLINE = threading.local()
 # s a step, by the number of sensitivity columns, measured on this machine as flows run (the
 # first values are this machine's at the time of writing, 2026-11-24: DOP853, 14 states)
 _STEP_COST = {0: 6.5e-6, 6: 2.0e-5, 7: 2.2e-5}
-
-
-@contextmanager
-def propagation_deadline(deadline):
-    """Within the block, on this thread, propagations stop where the steps left before
-    ``deadline`` (a ``time.perf_counter()`` value) run out; nested blocks keep the earlier one."""
-    prev = getattr(_DEADLINE, "t", math.inf)
-    _DEADLINE.t = min(prev, float(deadline))
-    try:
-        yield
-    finally:
-        _DEADLINE.t = prev
 
 
 def _step_cost(m):
@@ -85,7 +72,7 @@ def step_allowance(m, record=0):
     """``(max_steps, capped)``: the steps a propagation with ``m`` sensitivity columns may take
     before the deadline of ``propagation_deadline``; a recording run (an answer's dense
     trajectory) is not capped."""
-    dl = getattr(_DEADLINE, "t", math.inf)
+    dl = _current_deadline()
     if record or math.isinf(dl):
         return MAX_STEPS, False
     n = (dl - time.perf_counter()) / _step_cost(m)
@@ -95,10 +82,15 @@ def step_allowance(m, record=0):
 
 
 def _learn_step_cost(m, seconds, steps):
-    if steps >= 200:        # long enough for the timer; a moving average across calls
+    """A moving average of the CPU time a step takes (``seconds``: this thread's CPU time, so
+    that a wait for another thread is not counted), each new value held within a factor 2 of
+    the current one (a descheduled call would otherwise starve the next ones of steps)."""
+    if steps >= 200:        # long enough for the timer
         old = _STEP_COST.get(m)
         c = seconds / steps
-        _STEP_COST[m] = c if old is None else 0.7 * old + 0.3 * c
+        if old is not None:
+            c = 0.7 * old + 0.3 * min(max(c, 0.5 * old), 2.0 * old)
+        _STEP_COST[m] = c
 
 
 def quat_left_matrix(q):
@@ -256,12 +248,12 @@ class AttitudeBVP:
         sw_a = np.empty(self.max_switches + 1, dtype=np.int64)
         h0 = min(0.05, duration) if duration > 0 else 0.0
         max_steps, capped = step_allowance(m, record)
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         Y, s_end, n_rec, n_sw, steps, status = af.flow(
             Y0, float(duration), m, self.J, self.umax, self.mode, self.p, self.eps, signs,
             self.rtol, self.atol, h0, max_steps, self.max_switches, rec_t, rec_Y, rec_s, sw_t, sw_a,
             self.pen, detect, hmax)
-        _learn_step_cost(m, time.perf_counter() - t0, steps)
+        _learn_step_cost(m, time.thread_time() - t0, steps)
         if capped and status == af.FLOW_MAX_STEPS:
             status = FLOW_DEADLINE
         return Y, s_end, n_rec, n_sw, steps, status, rec_t, rec_Y, rec_s, sw_t, sw_a, signs
@@ -325,7 +317,7 @@ class AttitudeBVP:
         n_sw_kept = min(n_sw, swt.shape[0])
         return Trajectory(rt[:n_rec].copy(), rY[:n_rec].copy(), rs[:n_rec].copy(), swt[:n_sw_kept].copy(),
                           swa[:n_sw_kept].copy(), s0, status == af.FLOW_OK,
-                          "" if status == af.FLOW_OK else f"propagation failed (status {status})")
+                          "" if status == af.FLOW_OK else flow_failure(status))
 
     def arc(self, y0, duration, signs, Phi0=None):
         """One bang-bang arc with fixed ``signs`` (no switch detection)."""

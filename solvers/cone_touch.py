@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from .attitude_bvp import AttitudeBVP, NY, Trajectory
+from .attitude_bvp import AttitudeBVP, NY, Trajectory, flow_failure
 from .clearance import CLEARANCE_TOL, certified_replay, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
@@ -114,7 +114,7 @@ class TouchProblem:
             Y, s_end, _, n_sw, steps, status, *_ = bvp._run(y, dur, np.eye(NY) if want_jac else None,
                                                             signs0=signs)
             if status != af.FLOW_OK or not np.all(np.isfinite(Y)):
-                return None, None, f"propagation failed on segment {k} (status {status})"
+                return None, None, f"segment {k}: {flow_failure(status)}"
             ye = Y[:NY].copy()
             u, _ = af.control(ye, bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, s_end)
             fe = af.ext_rhs(ye, u, bvp.J)

@@ -33,6 +33,8 @@ from typing import Optional, Protocol
 
 import numpy as np
 
+from . import deadline as solve_deadline
+
 
 class Flow(Protocol):
     y: np.ndarray
@@ -246,7 +248,7 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
         if not np.all(np.isfinite(Jm)):
             status = STATUS_NONFINITE
             break
-        if time.perf_counter() > deadline:
+        if time.perf_counter() > deadline or solve_deadline.passed():
             status = STATUS_DEADLINE
             break
         nit += 1
@@ -270,6 +272,10 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
         alpha = 1.0
         accepted = False
         while alpha >= min_alpha:
+            if solve_deadline.passed():
+                # past the solve's end each trial's propagation is cut short and fails: halving
+                # the step on would only run ~20 more of them
+                break
             Zt = Z + alpha * dZ
             Rt, _, _ = _evaluate(problem, Zt, M, False, counter)
             if Rt is not None:
@@ -279,7 +285,7 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
                     break
             alpha *= 0.5
         if not accepted:
-            status = STATUS_LINE_SEARCH
+            status = STATUS_DEADLINE if solve_deadline.passed() else STATUS_LINE_SEARCH
             break
         Z = Zt
         R, Jm, msg = _evaluate(problem, Z, M, True, counter)

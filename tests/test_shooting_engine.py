@@ -83,3 +83,43 @@ def test_stall_criterion_leaves_a_converging_newton_alone():
     plain = newton_shoot(Oscillator(2.0), [1.5], 1.2, tol=1e-13)
     cut = newton_shoot(Oscillator(2.0), [1.5], 1.2, tol=1e-13, stall=(2, 0.5, 1e-5))
     assert cut.success and cut.nit == plain.nit and cut.p[0] == plain.p[0]
+
+
+def test_past_the_solves_deadline_newton_and_its_line_search_stop():
+    # inside a solve whose time is up (solvers.deadline), the engine takes no further step: its
+    # line search would otherwise halve the step ~20 times, each trial a propagation cut short
+    import time
+    from solvers.deadline import propagation_deadline
+    from solvers.shooting import STATUS_DEADLINE
+
+    class Failing(Oscillator):
+        calls = 0
+
+        def flow(self, y0, T, Phi0):
+            Failing.calls += 1
+            out = super().flow(y0, T, Phi0)
+            if Phi0 is None:        # every trial of the line search fails, as a capped run does
+                out.ok, out.message = False, "the time budget ran out during a propagation"
+            return out
+    free = newton_shoot(Failing(2.0), [1.5], 1.2)
+    assert not free.success and free.nit >= 1            # its line search ran (and failed)
+    Failing.calls = 0
+    with propagation_deadline(time.perf_counter() - 1.0):
+        r = newton_shoot(Failing(2.0), [1.5], 1.2)
+    assert r.status == STATUS_DEADLINE and r.nit == 0 and Failing.calls == 1
+    # outside, the engine is as before
+    assert newton_shoot(Oscillator(2.0), [1.5], 1.2, tol=1e-13).success
+
+
+def test_the_measured_step_cost_moves_at_most_a_factor_two_a_call():
+    from solvers import attitude_bvp as ab
+    saved = dict(ab._STEP_COST)
+    try:
+        ab._STEP_COST[6] = 2e-5
+        ab._learn_step_cost(6, 1.0, 1000)          # a call descheduled for a second
+        assert ab._STEP_COST[6] == pytest.approx(0.7 * 2e-5 + 0.3 * 4e-5)
+        ab._learn_step_cost(6, 1e-5, 100)          # too short to time: ignored
+        assert ab._STEP_COST[6] == pytest.approx(2.6e-5)
+    finally:
+        ab._STEP_COST.clear()
+        ab._STEP_COST.update(saved)
