@@ -587,7 +587,10 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     challenge = (method == "auto" and bool(prob.cones) and guess is None and isinstance(warm_start, str)
                  and warm_start == "default")
     if challenge and "extra_starts" not in col_opts:
-        col_opts = dict(col_opts, extra_starts=_cone_neighbour_starts(prob))
+        starts = _cone_neighbour_starts(prob)
+        col_opts = dict(col_opts, extra_starts=starts)
+        if starts and "n_starts" not in col_opts:
+            col_opts["n_starts"] = CONE_OWN_STARTS_WITH_NEIGHBOURS
     later = None
     if guess is None and not challenge:
         # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
@@ -1576,6 +1579,11 @@ def _refine_collocation(target, col, options, max_candidates, budget):
 # than the best found went from 9 to 4 (more than 1 %: 4 to 2), the mean gap from 1.4e-3 to
 # 1.1e-3, at +14 % median time; 4 neighbours did no better (runs/s15/nbr_starts.py)
 CONE_NEIGHBOUR_STARTS = 2
+# ... and with them, collocation's own starts drop from 4 (the eigenaxis slew and 3 perturbations
+# of it) to 2: the neighbours bring the variety the perturbations were for. 100 seeded problems
+# (seeds 0 and 1, runs/s29/ab_cones.py) gave the same answers and a median 9-12 % lower
+# (522 -> 474 ms, 489 -> 430 ms); 1 start lost 0.3-1 % on 3 of 60
+CONE_OWN_STARTS_WITH_NEIGHBOURS = 2
 # a cone whose clearance on the collocation answer exceeds this (rad) is taken as inactive
 INACTIVE_CONE_MARGIN = 1e-3
 TOUCH_BUDGET = 1.5   # s: the touch-point refinement's smoothing path after a failed direct attempt
