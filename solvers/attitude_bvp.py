@@ -47,7 +47,6 @@ from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
 from .core import attitude_flow as af
 from .core.pointing import pointing_terminal
 from .deadline import current as _current_deadline
-from .deadline import propagation_deadline  # noqa: F401 - re-exported: the solve's deadline
 
 NY = af.NY
 
@@ -58,9 +57,10 @@ MAX_STEPS = 200_000
 # fewer than ``MIN_STEPS``: a stiff body (axes' acceleration bounds 1,000 apart) needs 20,000+
 # steps of ~20 µs with sensitivities, and one such call had ended a 0.05 s solve 0.6 s late
 MIN_STEPS = 200
-# s a step, by the number of sensitivity columns, measured on this machine as flows run (the
-# first values are this machine's at the time of writing, 2026-11-24: DOP853, 14 states)
-_STEP_COST = {0: 6.5e-6, 6: 2.0e-5, 7: 2.2e-5}
+# s a step, by the number of sensitivity columns, measured in the process as flows run; before
+# the first measurement, this machine's at the time of writing (2026-11-24, DOP853 on 14 states:
+# 6.5 µs, plus 2.2 µs a column; 20 µs with the 6 of a shooting Jacobian)
+_STEP_COST = {}
 
 
 def _step_cost(m):
@@ -70,7 +70,7 @@ def _step_cost(m):
 
 def step_allowance(m, record=0):
     """``(max_steps, capped)``: the steps a propagation with ``m`` sensitivity columns may take
-    before the deadline of ``propagation_deadline``; a recording run (an answer's dense
+    before the solve's deadline (``solvers.deadline``); a recording run (an answer's dense
     trajectory) is not capped."""
     dl = _current_deadline()
     if record or math.isinf(dl):
@@ -86,11 +86,8 @@ def _learn_step_cost(m, seconds, steps):
     that a wait for another thread is not counted), each new value held within a factor 2 of
     the current one (a descheduled call would otherwise starve the next ones of steps)."""
     if steps >= 200:        # long enough for the timer
-        old = _STEP_COST.get(m)
-        c = seconds / steps
-        if old is not None:
-            c = 0.7 * old + 0.3 * min(max(c, 0.5 * old), 2.0 * old)
-        _STEP_COST[m] = c
+        old = _step_cost(m)
+        _STEP_COST[m] = 0.7 * old + 0.3 * min(max(seconds / steps, 0.5 * old), 2.0 * old)
 
 
 def quat_left_matrix(q):

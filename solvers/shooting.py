@@ -248,7 +248,7 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
         if not np.all(np.isfinite(Jm)):
             status = STATUS_NONFINITE
             break
-        if time.perf_counter() > deadline or solve_deadline.passed():
+        if time.perf_counter() > min(deadline, solve_deadline.current()):
             status = STATUS_DEADLINE
             break
         nit += 1

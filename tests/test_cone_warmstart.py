@@ -539,3 +539,13 @@ def test_a_damaged_shipped_cone_model_does_not_cost_the_verified_answer(monkeypa
     # asked for by name, the same file is an input error, not a silent fallback
     with pytest.raises(ModelFileError):
         solve(TOUCH, warm_start=str(bad))
+
+
+def test_both_tables_refuse_fewer_than_one_neighbour():
+    from solvers import warmstart
+    cone_table = warmstart.resolve("pointing-cones").table
+    for k in (0, -1):
+        with pytest.raises(ValueError, match="k: need at least one neighbour"):
+            cone_table.nearest(cone_table.a["X"][0], k)
+    assert list(cone_table.nearest(cone_table.a["X"][0], None)) == list(cone_table.nearest(cone_table.a["X"][0],
+                                                                                           cone_table.k))

@@ -275,7 +275,8 @@ def _stiff_flow(bvp):
 
 
 def test_a_propagation_stops_at_the_solves_deadline():
-    from solvers.attitude_bvp import MIN_STEPS, AttitudeBVP, propagation_deadline, step_allowance
+    from solvers.attitude_bvp import MIN_STEPS, AttitudeBVP, step_allowance
+    from solvers.deadline import propagation_deadline
     bvp = AttitudeBVP(STIFF, mode="tanh", eps=0.05)
     free = _stiff_flow(bvp)
     assert free.ok and free.n_steps > 10 * MIN_STEPS

@@ -23,7 +23,7 @@ from ..guesses import Guess
 from ..core import warmstart_kernels as _k
 from .cone_features import cone_canonical_form, cone_unsupported_reason, solution_from_canonical
 from .model import ModelFileError, read_npz
-from .nearest import NN_FORMAT, NN_FORMAT_VERSION, table_coverage
+from .nearest import NN_FORMAT, NN_FORMAT_VERSION, neighbour_count, table_coverage
 
 ARRAYS = ("X", "Z", "T", "T_ref", "U", "F", "touch", "frac", "log_nu")
 
@@ -75,10 +75,7 @@ class ConeNearestNeighbourModel:
     def nearest(self, x, k=None) -> np.ndarray:
         """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the
         canonical features ``x`` (standardised Euclidean distance), nearest first."""
-        k = int(k or self.k)
-        if k < 1:
-            raise ValueError(f"k: need at least one neighbour, got {k}")
-        k = min(k, self.a["X"].shape[0])
+        k = neighbour_count(k, self.k, self.a["X"].shape[0])
         x = np.asarray(x, float)
         if x.shape != (self._XT.shape[0],) or not np.all(np.isfinite(x)):
             raise ValueError(f"x: expected {self._XT.shape[0]} finite canonical features, got {x!r:.80}")

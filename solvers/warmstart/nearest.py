@@ -113,10 +113,7 @@ class NearestNeighbourModel:
     def nearest(self, x, k=None) -> np.ndarray:
         """Row indices of the ``k`` (default ``self.k``) tabled problems nearest to the canonical
         features ``x``, nearest first (the k-d tree: 11 features)."""
-        k = self.k if k is None else int(k)
-        if k < 1:
-            raise ValueError(f"k: need at least one neighbour, got {k}")
-        k = min(k, self.X.shape[0])
+        k = neighbour_count(k, self.k, self.X.shape[0])
         return np.atleast_1d(self.tree.query(np.asarray(x, float) / self.scale, k=k)[1])
 
     def guess(self, problem, k=None) -> Guess:
@@ -135,3 +132,12 @@ class NearestNeighbourModel:
             else:
                 out.candidates.append(g)
         return out
+
+
+def neighbour_count(k, default, n_rows) -> int:
+    """The neighbours a table's ``nearest(x, k)`` returns: ``k`` (``None``: the table's
+    ``default``), at most its ``n_rows``; ``ValueError`` naming ``k`` below 1."""
+    k = default if k is None else int(k)
+    if k < 1:
+        raise ValueError(f"k: need at least one neighbour, got {k}")
+    return min(k, n_rows)
