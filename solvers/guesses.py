@@ -32,6 +32,20 @@ import numpy as np
 from slew_env.core.quaternion import qaxis_angle, qconj, qmul
 
 
+class _FailedCandidate:
+    """A deferred candidate that had failed when its guess was pickled: calling it raises that
+    failure again (a ``ValueError`` as it was, any other as a ``RuntimeError`` of its name)."""
+
+    def __init__(self, kind, message):
+        self.kind, self.message = kind, message
+
+    def __call__(self):
+        if self.kind == "ValueError":
+            raise ValueError(self.message)
+        # a stand-in type of the same name, so that the solver's report reads as it would have
+        raise type(self.kind, (RuntimeError,), {})(self.message)
+
+
 @dataclass
 class Guess:
     costate0: np.ndarray
@@ -89,8 +103,8 @@ class Guess:
         that converges on the first guess never pays for the later ones. Its result is kept on
         this guess (``None``: skipped); ``candidates`` itself is not changed, so a guess shared
         between calls or threads stays intact (a deferred function may then run more than
-        once: it must not have side effects that matter). A guess holding functions cannot be
-        pickled (sent to a process pool); ``all()`` gives the plain list.
+        once: it must not have side effects that matter). Pickling a guess (to send it to a
+        process pool or Ray) makes its deferred candidates first (``__getstate__``).
 
         ``errors``: ``None`` (a candidate that is not a ``Guess``, or a deferred one that raises
         or returns something else, is an error), or a list to which such candidates are added
@@ -101,15 +115,7 @@ class Guess:
         for k, c in enumerate(list(self.candidates)):
             if not isinstance(c, Guess):
                 try:
-                    if not callable(c):
-                        raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
-                                         f"got {type(c).__name__}")
-                    if k not in memo:
-                        made = c()
-                        if made is not None and not isinstance(made, Guess):
-                            raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
-                                             f"{type(made).__name__}, expected a Guess or None")
-                        memo[k] = made
+                    c = self._made(k, c, memo)
                 except Exception as e:      # noqa: BLE001 - any failure of a model's code
                     if errors is None:
                         if isinstance(e, ValueError):
@@ -118,10 +124,50 @@ class Guess:
                                          f"{type(e).__name__}: {e}"[:300]) from e
                     errors.append(f"candidates[{k}]: {type(e).__name__}: {e}"[:300])
                     memo[k] = None
-                c = memo[k]
+                    continue
                 if c is None:           # nothing to add (e.g. the same as an earlier candidate)
                     continue
             yield c
+
+    @staticmethod
+    def _made(k, c, memo):
+        """Candidate ``k`` that is not a ``Guess``: the deferred function's result (made once,
+        kept in ``memo``), or an error."""
+        if not callable(c):
+            raise ValueError(f"guess.candidates[{k}]: expected a Guess or a function returning one, "
+                             f"got {type(c).__name__}")
+        if k not in memo:
+            made = c()
+            if made is not None and not isinstance(made, Guess):
+                raise ValueError(f"guess.candidates[{k}]: the deferred candidate returned "
+                                 f"{type(made).__name__}, expected a Guess or None")
+            memo[k] = made
+        return memo[k]
+
+    def __getstate__(self):
+        # A deferred candidate is usually a closure over a model (not picklable), so a pickled
+        # guess carries what it makes instead: the ``Guess``, nothing for ``None``, and for one
+        # that fails a stand-in that raises the same error when the solver reaches it, so that
+        # the solve in the other process reports it as this one would have.
+        state = dict(self.__dict__)
+        state.pop("_deferred", None)
+        if all(isinstance(c, Guess) for c in self.candidates):
+            return state
+        memo = self.__dict__.setdefault("_deferred", {})
+        plain = []
+        for k, c in enumerate(self.candidates):
+            if isinstance(c, Guess):
+                plain.append(c)
+                continue
+            try:
+                made = self._made(k, c, memo)
+            except Exception as e:      # noqa: BLE001 - raised again where the solver reaches it
+                plain.append(_FailedCandidate(type(e).__name__, str(e)))
+                continue
+            if made is not None:
+                plain.append(made)
+        state["candidates"] = plain
+        return state
 
     # --- conversion to / from the solver's nondimensional unknowns
     def to_nondim(self, bvp, with_norm=False):

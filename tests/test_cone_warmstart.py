@@ -375,6 +375,34 @@ def test_a_deferred_candidate_that_fails_is_skipped(monkeypatch):
     assert sol.n_candidates == 1
 
 
+def test_a_guess_with_deferred_candidates_pickles_as_what_they_make(monkeypatch):
+    """A cone model's guess holds closures over the model; sent to a process pool or Ray it
+    carries the candidates they make, and a failing one fails again where it is reached."""
+    import pickle
+    from solvers.warmstart import default_cone_model
+    m = default_cone_model()
+    g, why = m.guess_or_reason(TOUCH)
+    assert why is None and all(callable(c) for c in g.candidates)
+    back = pickle.loads(pickle.dumps(g))
+    assert all(isinstance(c, Guess) for c in back.candidates)
+    here = g.all()
+    there = back.all()
+    assert [c.source for c in there] == [c.source for c in here]
+    for a, b in zip(here, there):
+        assert np.array_equal(a.costate0, b.costate0) and a.tf == b.tf and a.touches == b.touches
+    # the network broken: the pickled guess reports it where the solver reaches it, as in-process
+    def broken(*a, **k):
+        raise FloatingPointError("the network broke")
+    monkeypatch.setattr(m.network, "guess_from_form", broken)
+    g, _ = m.guess_or_reason(TOUCH)
+    back = pickle.loads(pickle.dumps(g))
+    skipped = []
+    assert len(list(back.iter_all(errors=skipped))) == 4         # the 4 neighbours
+    assert len(skipped) == 1 and "FloatingPointError: the network broke" in skipped[0]
+    with pytest.raises(ValueError, match="deferred candidate raised FloatingPointError: the network broke"):
+        pickle.loads(pickle.dumps(m.guess_or_reason(TOUCH)[0])).all()
+
+
 @pytest.mark.parametrize("j", [1, 2])
 def test_a_tabled_problem_converges_from_its_own_solution(j, monkeypatch):
     import solvers.api as api

@@ -353,6 +353,25 @@ def test_deferred_candidates_run_only_when_reached():
         Guess(r["costate0"], r["tf"], candidates=[lambda: "x"]).all()
 
 
+def test_a_guess_with_deferred_candidates_can_be_sent_to_another_process():
+    import pickle
+    r = _exact()[5]
+    made = Guess(r["costate0"], r["tf"], source="deferred")
+    g = Guess(2 * np.asarray(r["costate0"]), r["tf"] * 1.1, source="first",
+              candidates=[lambda: None, made, lambda: made, lambda: 1 / 0, lambda: "x"])
+    back = pickle.loads(pickle.dumps(g))
+    assert back.source == "first" and np.array_equal(back.costate0, g.costate0)
+    skipped = []
+    assert [c.source for c in back.iter_all(errors=skipped)] == ["first", "deferred", "deferred"]
+    assert len(skipped) == 2 and "ZeroDivisionError" in skipped[0] and "returned str" in skipped[1]
+    with pytest.raises(ValueError, match="deferred candidate raised ZeroDivisionError"):
+        pickle.loads(pickle.dumps(g)).all()
+    # the original keeps its functions; a guess of plain candidates pickles as it is
+    assert callable(g.candidates[0]) and len(g.candidates) == 5
+    plain = pickle.loads(pickle.dumps(Guess(r["costate0"], r["tf"], candidates=[made])))
+    assert [c.source for c in plain.all()] == ["user", "deferred"]
+
+
 def test_auto_holds_a_costates_only_candidate_until_collocation_shows_no_singular_arc():
     r = _exact()[5]
     prob = SlewProblem.from_dict(r["problem"])

@@ -12,7 +12,7 @@ touches, 34 of the network's costate guesses converge; with its own, 10). So the
 axes and cones), then the network's guess and its variants (``cone_model``). The solver tries
 them one by one, each under a short time cap (``solvers.api.CONE_CANDIDATE_CAP``). Only the
 nearest solution's guess is made up front; the later candidates are deferred (``Guess.iter_all``:
-made when the solver reaches them, so such a guess is not picklable; ``all()`` gives the plain list).
+made when the solver reaches them; pickling such a guess makes them first).
 
 Files: the network ``pointing-cones.npz`` and the table ``pointing-cones.nn.npz`` next to it
 (both made by ``slew train --config training/warmstart/configs/pointing-cones.yaml --export``).
