@@ -357,7 +357,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
     iteration); where less is left than its default profile takes, the fallback plans on fewer
     angle steps (``_fallback_grid``), down to a floor that is late below a few milliseconds of
-    budget (README, "A hard time budget"; docs/SOLVER.md). The budget's clock starts after the compiled kernels of
+    budget (docs/SOLVER.md, "Short budgets with the fallback"). The budget's clock starts after the compiled kernels of
     the problem's kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
     ``kernel_load_time``; ``solvers.load_kernels`` does it at start-up), and collocation builds
     no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with
