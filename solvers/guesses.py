@@ -22,6 +22,7 @@ Classical guesses provided here:
 """
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -143,6 +144,19 @@ class Guess:
                                  f"{type(made).__name__}, expected a Guess or None")
             memo[k] = made
         return memo[k]
+
+    # copying (``copy.copy``, ``copy.deepcopy``) goes through ``__reduce_ex__`` as pickling does;
+    # these keep the deferred candidates deferred, so that only pickling runs a model's code
+    def __copy__(self):
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        return new
+
+    def __deepcopy__(self, memo):
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        new.__dict__.update(copy.deepcopy(self.__dict__, memo))
+        return new
 
     def __getstate__(self):
         # A deferred candidate is usually a closure over a model (not picklable), so a pickled

@@ -368,6 +368,14 @@ def test_a_guess_with_deferred_candidates_can_be_sent_to_another_process():
         pickle.loads(pickle.dumps(g)).all()
     # the original keeps its functions; a guess of plain candidates pickles as it is
     assert callable(g.candidates[0]) and len(g.candidates) == 5
+    # copying keeps them deferred: nothing is made until the solver (or pickling) asks
+    import copy
+    calls = []
+    lazy = Guess(r["costate0"], r["tf"], candidates=[lambda: calls.append(1) or made])
+    for c in (copy.copy(lazy), copy.deepcopy(lazy)):
+        assert callable(c.candidates[0]) and np.array_equal(c.costate0, lazy.costate0)
+    assert calls == []
+    assert [c.source for c in copy.deepcopy(lazy).all()] == ["user", "deferred"] and calls == [1]
     plain = pickle.loads(pickle.dumps(Guess(r["costate0"], r["tf"], candidates=[made])))
     assert [c.source for c in plain.all()] == ["user", "deferred"]
 
