@@ -44,6 +44,18 @@ NEAR_MARGIN = 1e-3        # rad: a local minimum of the margin below this is a c
 ARC_MARGIN = 1e-4         # rad: a contact that stays this close over 5 % of tf is a boundary arc
 SMOOTHING_PATH = (2e-2, 1e-2, 5e-3, 2e-3, 1e-3)
 STRUCTURE_REPAIRS = 3     # re-solves of the switch-time problem with the structure its answer shows
+# A learned candidate's switch-time Newton gives up when, after this many iterations, its residual
+# has not once come below this (``structured_newton``'s ``stall``). On 100 held-out problems
+# (runs/s31/cand_trace.py, trace_an2.py) every candidate that converged had its residual below
+# 0.1 within 5 Jacobian evaluations, while the failing ones spent 33 ms each, a median, and most
+# of it with the residual above 0.1: the next candidate can use that time
+LEARNED_STALL = (8, 0.1)
+# ... and it iterates with the integrator at this tolerance until its residual is below 1e3 times
+# it, then at the problem's (1e-12): a residual with its Jacobian costs 0.49 ms instead of
+# 0.77 ms (runs/s31/rtol_cost.py, 40 held-out problems), and its error, 3e-9, is far below the
+# residuals of the iterations it serves
+LEARNED_COARSE_RTOL = 1e-8
+NEWTON_TOL = 1e-11        # the event-driven Newton's residual (max norm) of a converged extremal
 
 
 class TouchBVP(AttitudeBVP):
@@ -234,10 +246,30 @@ def repaired_structure(tp, x, times, st):
     return None if same else new
 
 
-def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3, deadline=math.inf):
+def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step=0.3, deadline=math.inf,
+                      stall=None, coarse_rtol=None):
     """Newton with a line search on ``_structured_residual``: ``(x, converged, nit, nfev,
     residual, switch instants)`` with ``x = [z, T, touch instants, multipliers]`` as
-    ``TouchProblem`` takes it (the event-driven Newton then checks the structure)."""
+    ``TouchProblem`` takes it (the event-driven Newton then checks the structure).
+    ``stall = (k, r)``: give up after ``k`` iterations if the residual (max norm) has not yet
+    come below ``r`` (``LEARNED_STALL``). ``coarse_rtol``: iterate with the integrator at this
+    tolerance until the residual is below ``1e3 · coarse_rtol``, then at the problem's own
+    (``LEARNED_COARSE_RTOL``); convergence is only ever declared at the problem's."""
+    bvp = tp.bvp
+    fine = (bvp.rtol, bvp.atol)
+    if coarse_rtol is None or not coarse_rtol > fine[0]:
+        return _structured_newton(tp, z0, st, T0, tc0, nu0, tol, max_iter, max_step, deadline, stall, None)
+    try:
+        bvp.rtol, bvp.atol = coarse_rtol, coarse_rtol * fine[1] / fine[0]
+        return _structured_newton(tp, z0, st, T0, tc0, nu0, tol, max_iter, max_step, deadline, stall,
+                                  (1e3 * coarse_rtol, fine))
+    finally:
+        bvp.rtol, bvp.atol = fine
+
+
+def _structured_newton(tp, z0, st, T0, tc0, nu0, tol, max_iter, max_step, deadline, stall, refine):
+    """``structured_newton``'s iterations; ``refine = (residual, (rtol, atol))``: the integrator
+    is at a coarse tolerance, and goes to ``(rtol, atol)`` once the residual is below ``residual``."""
     n, K = st.n, tp.K
     x = np.concatenate([np.asarray(z0, float), np.asarray(st.times, float), [float(T0)],
                         np.asarray(tc0, float), np.asarray(nu0, float)])
@@ -261,11 +293,23 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         return pack(x)[0], False, 0, nfev, math.inf, pack(x)[1]
     scale = np.concatenate([np.ones(6), np.full(n + 1 + K, max(float(T0), 1e-3)), np.maximum(np.abs(nu0), 1.0)])
     phi = float(r @ r)
+    best = math.inf
     for it in range(max_iter):
         rn = float(np.max(np.abs(r)))
-        if rn < tol:
+        if refine is not None and rn < refine[0]:
+            # close enough for the problem's tolerance: the residual and Jacobian again with it
+            tp.bvp.rtol, tp.bvp.atol = refine[1]
+            refine = None
+            r, Jm = _structured_residual(tp, *split(x), st, True)
+            nfev += 1
+            if r is None:
+                return pack(x)[0], False, it, nfev, math.inf, pack(x)[1]
+            phi = float(r @ r)
+            rn = float(np.max(np.abs(r)))
+        if rn < tol and refine is None:
             return pack(x)[0], True, it, nfev, rn, pack(x)[1]
-        if time.perf_counter() > deadline:
+        best = min(best, rn)
+        if time.perf_counter() > deadline or (stall is not None and it >= stall[0] and best > stall[1]):
             return pack(x)[0], False, it, nfev, rn, pack(x)[1]
         dx = np.linalg.lstsq(Jm, -r, rcond=1e-13)[0]
         big = float(np.max(np.abs(dx) / scale))
@@ -295,10 +339,10 @@ def structured_newton(tp, z0, st, T0, tc0, nu0, tol=1e-11, max_iter=40, max_step
         x, r, Jm = xt, rt, Jt
         phi = float(r @ r)
     rn = float(np.max(np.abs(r)))
-    return pack(x)[0], rn < tol, max_iter, nfev, rn, pack(x)[1]
+    return pack(x)[0], rn < tol and refine is None, max_iter, nfev, rn, pack(x)[1]
 
 
-def newton(tp, x0, tol=1e-11, max_iter=30, max_step=0.3, deadline=math.inf):
+def newton(tp, x0, tol=NEWTON_TOL, max_iter=30, max_step=0.3, deadline=math.inf):
     """Damped Newton on the touch-point problem: ``(x, converged, nit, nfev, residual)``."""
     x = np.asarray(x0, float).copy()
     R, Jm, msg = tp.segments(x)
@@ -464,6 +508,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     # once if so. Structures tried: the guess's, then the one its own costates produce
     # (event-driven propagation through the guessed touches), if different
     tried = []
+    evaluated = {}      # id of a switch-time answer: (its event-driven residual, its pieces)
     soft = min(t_start + time_budget, deadline)    # the structures' and the smoothing path's limit
     over = lambda: time.perf_counter() > soft   # noqa: E731
     for st in (_structure_of(guess, tau), "propagated"):
@@ -474,14 +519,17 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         if st is None or any(_same_structure(st, o) for o in tried):
             continue
         tried.append(st)
-        xs_, n1, n2 = _switch_time_solve(tp, x0, st, soft)
+        xs_, n1, n2 = _switch_time_solve(tp, x0, st, soft, **({} if smoothing else _learned_newton()))
         nit, nfev = nit + n1, nfev + n2
         if xs_ is not None:
             starts.insert(len(starts) - 1, xs_)     # before the raw guess, after earlier answers
-            R_ev = tp.segments(xs_, want_jac=False)[0]
+            R_ev, _, pieces_ev = tp.segments(xs_, want_jac=False)
+            if R_ev is not None:
+                evaluated[id(xs_)] = (float(np.max(np.abs(R_ev))), pieces_ev)
             if R_ev is not None and float(np.max(np.abs(R_ev))) < 1e-9:
                 break       # the event-driven flow agrees: this structure is the extremal's
     raw_skipped = False
+    pieces = None
     for xstart in starts:
         if over() and xstart is x0 and len(starts) > 1:
             break
@@ -492,8 +540,13 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
             # the touch solver's time, which the next candidate can use
             raw_skipped = True
             break
+        if id(xstart) in evaluated and evaluated[id(xstart)][0] < NEWTON_TOL:
+            # already an event-driven extremal: the Newton would stop before its first step
+            x, ok, rn, pieces = xstart, True, evaluated[id(xstart)][0], evaluated[id(xstart)][1]
+            break
         x, ok, n1, n2, rn = newton(tp, xstart, deadline=deadline if smoothing else soft)
         nit, nfev = nit + n1, nfev + n2
+        pieces = None
         if ok:
             break
     if not ok and smoothing:
@@ -513,6 +566,7 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         if ok_s:
             x, ok, n1, n2, rn = newton(tp, xs, deadline=deadline)
             nit, nfev = nit + n1, nfev + n2
+            pieces = None
     if not ok:
         why = f"Newton did not converge (residual {rn:.2g}, {nit} iterations)"
         if raw_skipped and not math.isfinite(rn):
@@ -523,19 +577,57 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
         sol = _fail(problem, why, t_start)
         sol.nit, sol.nfev = nit, nfev
         return sol
-    sol = _verify(tp, x, problem, guess.source, reference, tols)
+    sol = _verify(tp, x, problem, guess.source, reference, tols, pieces)
     sol.nit, sol.nfev = nit, nfev
     sol.wall_time = time.perf_counter() - t_start
     return sol
 
 
-def _switch_time_solve(tp, x0, st, deadline=math.inf):
+def starting_residuals(problem, guesses) -> list:
+    """For each guess, the switch-time residual (max norm) as given, with its own structure,
+    touches and multipliers: the first thing ``solve_touch_guess`` evaluates, here without the
+    Jacobian and at ``LEARNED_COARSE_RTOL``. ``inf`` where a guess has no touches or no
+    structure, names a cone the problem does not have, or its flow fails, and for all of them
+    where the bound is not per-axis. A learned route's candidates are tried in order of it
+    (``solvers.api._solve_learned_cones``)."""
+    out = [math.inf] * len(guesses)
+    if not math.isinf(problem.torque_norm) or problem.sensor_axis is None or not problem.cones:
+        return out
+    bvp = TouchBVP(problem)
+    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    if LEARNED_COARSE_RTOL is not None and LEARNED_COARSE_RTOL > bvp.rtol:
+        bvp.rtol, bvp.atol = LEARNED_COARSE_RTOL, LEARNED_COARSE_RTOL * bvp.atol / bvp.rtol
+    for k, guess in enumerate(guesses):
+        st = _structure_of(guess, bvp.tau) if guess.touches else None
+        if st is None or any(c >= len(problem.cones) for c, _, _ in guess.touches):
+            continue
+        try:
+            tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
+            z, T0, nz = guess.to_nondim(bvp, with_norm=True)
+            tc = np.array([t / bvp.tau for _, t, _ in guess.touches])
+            nu = np.array([m / (bvp.tau * nz) for _, _, m in guess.touches])
+            r = _structured_residual(tp, z, np.asarray(st.times, float), T0, tc, nu, st, False)[0]
+        except (ValueError, TypeError, IndexError, ArithmeticError):
+            continue    # a guess the touch solver cannot use: it says why when the route reaches it
+        if r is not None:
+            out[k] = float(np.max(np.abs(r)))
+    return out
+
+
+def _learned_newton():
+    """``structured_newton``'s options on a learned guess's route (module constants, read when used)."""
+    return {"stall": LEARNED_STALL, "coarse_rtol": LEARNED_COARSE_RTOL}
+
+
+def _switch_time_solve(tp, x0, st, deadline=math.inf, stall=None, coarse_rtol=None):
     """Switch-time Newton from ``x0`` with structure ``st``, repaired up to
-    ``STRUCTURE_REPAIRS`` times: ``(x or None, nit, nfev)``."""
+    ``STRUCTURE_REPAIRS`` times: ``(x or None, nit, nfev)``. ``stall``, ``coarse_rtol``:
+    ``structured_newton``'s."""
     nit = nfev = 0
     zs, Ts, tcs, nus = tp.unpack(x0)
     for _ in range(STRUCTURE_REPAIRS + 1):
-        xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus, deadline=deadline)
+        xs_, ok_s, n1, n2, _, times = structured_newton(tp, zs, st, Ts, tcs, nus, deadline=deadline, stall=stall,
+                                                        coarse_rtol=coarse_rtol)
         nit, nfev = nit + n1, nfev + n2
         if not ok_s:
             return None, nit, nfev
@@ -592,11 +684,15 @@ def _structure_of(guess, tau):
     return Structure(np.where(np.asarray(guess.u_first) >= 0, 1.0, -1.0), axes[order], times[order])
 
 
-def _verify(tp, x, problem, source, reference, tols):
+def _verify(tp, x, problem, source, reference, tols, pieces=None):
+    """The checks of a touch extremal ``x``; ``pieces``: ``tp.segments(x)``'s, where already made."""
     bvp, K = tp.bvp, tp.K
     tau = bvp.tau
     z, T, tc, nu = tp.unpack(x)
-    R, _, pieces = tp.segments(x, want_jac=False)
+    if pieces is None:
+        R, _, pieces = tp.segments(x, want_jac=False)
+    else:
+        R = True
     path = _event_driven_path(bvp, pieces, record=4000, hmax=T / 1000) if R is not None else None
     if path is None:
         return _fail(problem, "the converged touch extremal could not be propagated for its verification",

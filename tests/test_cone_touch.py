@@ -224,7 +224,7 @@ def test_without_smoothing_the_raw_guess_gets_no_event_driven_newton(touch_solut
     import solvers.cone_touch as ct
     _, sol, _ = touch_solutions
     calls = []
-    monkeypatch.setattr(ct, "_switch_time_solve", lambda tp, x0, st, deadline=math.inf: (None, 3, 7))
+    monkeypatch.setattr(ct, "_switch_time_solve", lambda tp, x0, st, deadline=math.inf, **k: (None, 3, 7))
     real_newton = ct.newton
     monkeypatch.setattr(ct, "newton", lambda tp, x, **k: calls.append(x) or real_newton(tp, x, **k))
     out = solve_touch_guess(TOUCH, _answer_guess(sol), smoothing=False)
