@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from .core.clearance_kernels import certified_bounds, path_margins
+
 # the smallest clearance margin (rad) an answer may have anywhere on its path: a start or
 # target on a cone boundary (Melton's R4) leaves the certified bound a few 1e-8 below zero
 CLEARANCE_TOL = -1e-6
@@ -30,11 +32,19 @@ def sensor_directions(q, sensor_b):
 
 def cone_margins(problem, q):
     """Clearance margin (rad) of each cone of ``problem`` for each row of ``q``: (n, n_cones),
-    ``angle(sensor, axis) - half_angle`` (atan2: accurate near 0 and π)."""
-    d = sensor_directions(np.asarray(q, float), problem.sensor_axis)
-    cols = [np.arctan2(np.linalg.norm(np.cross(d, c.axis), axis=1), d @ c.axis) - c.half_angle
-            for c in problem.cones]
-    return np.stack(cols, axis=1) if cols else np.zeros((d.shape[0], 0))
+    ``angle(sensor, axis) - half_angle`` (atan2: accurate near 0 and π; compiled,
+    ``core.clearance_kernels.path_margins``)."""
+    q = np.ascontiguousarray(q, dtype=float).reshape(-1, 4)
+    if not problem.cones:
+        return np.zeros((q.shape[0], 0))
+    axes, half = _cone_arrays(problem)
+    return path_margins(q, np.asarray(problem.sensor_axis, dtype=float), axes, half)
+
+
+def _cone_arrays(problem):
+    """The cones' axes (n_cones, 3) and half-angles, as the compiled kernels take them."""
+    return (np.array([c.axis for c in problem.cones], dtype=float).reshape(-1, 3),
+            np.array([c.half_angle for c in problem.cones], dtype=float))
 
 
 def margins(problem, q):
@@ -72,24 +82,13 @@ def cone_clearances(problem, t, q, omega):
     # inside a step |ω| exceeds the larger end value by at most amax·Δt, with
     # |ω̇| ≤ |u_max / J| + |ω|² J_max / J_min (Euler's equations)
     amax = float(np.linalg.norm(problem.torque_max / J)) + 1.1 * float(w.max()) ** 2 * float(J.max() / J.min())
-    dt = np.diff(t)
-    W = np.maximum(w[:-1], w[1:]) + amax * dt
-    out = []
-    for k, c in enumerate(problem.cones):
-        m = mar[:, k]
-        theta = m + c.half_angle
-        lo_end = np.minimum(m[:-1], m[1:])
-        first = np.minimum(0.5 * (m[:-1] + m[1:]) - 0.5 * W * dt, lo_end)
-        th_lo = np.minimum(theta[:-1], theta[1:]) - W * dt
-        th_hi = np.maximum(theta[:-1], theta[1:]) + W * dt
-        inside = (th_lo > 0.0) & (th_hi < np.pi)
-        s_low = np.where(inside, np.minimum(np.sin(np.clip(th_lo, 0.0, np.pi)), np.sin(np.clip(th_hi, 0.0, np.pi))),
-                         0.0)
-        ok = s_low > 1e-6
-        B = (amax + 2.0 * W ** 2) / np.where(ok, s_low, 1.0)
-        second = np.where(ok, lo_end - B * dt ** 2 / 8.0, -np.inf)
-        out.append((float(m.min()), float(np.max([first, second], axis=0).min()), float(m[0]), float(m[-1])))
-    return out
+    # per step: the first-order bound min(mean - W Δt / 2, smaller end), W = the larger end's |ω|
+    # + amax Δt; the second-order one, smaller end - B Δt² / 8 with B = (amax + 2 W²) / sin θ_low,
+    # where θ stays within (0, π) over the step and sin θ_low > 1e-6; the better of the two
+    # (compiled: ``core.clearance_kernels.certified_bounds``)
+    _, half = _cone_arrays(problem)
+    b = certified_bounds(np.ascontiguousarray(t, dtype=float), mar, np.ascontiguousarray(w), half, amax)
+    return [tuple(float(v) for v in row) for row in b]
 
 
 REPLAY_STEPS = (8000, 32000)   # RK4 steps over tf of the certified replay: first try, then finer
