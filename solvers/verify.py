@@ -78,6 +78,8 @@ def failure_text(checks):
     while digits < 12 and f"{v:.{digits}g}" == f"{tol:.{digits}g}":
         digits += 1
     text = f"verification failed: {failed[0]} = {v:.{digits}g} (tolerance {tol:.{digits}g})"
+    if c.get("note"):
+        text += f": {c['note']}"
     if len(failed) > 1:
         text += f"; also failed: {', '.join(failed[1:])}"
     return text
@@ -118,6 +120,12 @@ def boundary_checks(bvp, yT, tols):
     rate_nd = float(np.linalg.norm(yT[4:7] - bvp.wf))
     checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
                                                    att <= tols["boundary_attitude_error"])
+    if bvp.pointing and att > 0.5 * math.pi:
+        # the pointing residual (the sensor parallel to the target) has a root with the sensor
+        # reversed, which a Newton iteration can converge to: say so, an angle of 3.14 alone
+        # does not
+        checks["boundary_attitude_error"]["note"] = ("the sensor ends pointing away from the target (a root "
+                                                     "of the pointing condition with the sensor reversed)")
     checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                                rate_nd <= tols["boundary_rate_error"])
     if bvp.pointing:

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from slew_env import Cone
+from slew_env import Cone, SlewProblem
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qrotate
 from solvers import solve
@@ -201,3 +201,50 @@ def test_penalty_route_verifies_nothing_after_its_deadline(monkeypatch):
     assert "before the final polish" in sol.message and "ok (" in sol.message
     assert sol.verification == {} and len(calls) == 1
     assert time.perf_counter() - t0 < 6.5 + 6.0
+
+
+# the session-31 audit's problem (runs/s31/replay/repro/penalised_control_clearance.py): flown
+# by its returned control, the penalised answer entered the cone by 1.7e-6 rad where the
+# penalised flow's own path cleared it; its clearance was certified on that path only
+AUDIT = {"inertia": [0.40718115157801044, 0.7008329611608657, 0.9112155557340605],
+         "q0": [-0.645364058319053, -0.13610712147381857, 0.04248953701104628, -0.7504496804974069],
+         "sensor_axis": [1.0, 0.0, 0.0],
+         "sensor_target": [0.23964548420518259, -0.8398203208726349, -0.48710560513039497],
+         "cones": [{"axis": [0.44382077334851255, -0.008763120652846871, -0.8960727252074756],
+                    "half_angle": 0.40273272753291917}]}
+
+
+def _fly_control(p, sol):
+    """The returned control exactly as ``control(t)`` gives it (linear between the samples),
+    by scipy's DOP853 from breakpoint to breakpoint: ``(t, states)``."""
+    from scipy.integrate import solve_ivp
+    J = np.asarray(p.inertia, float)
+
+    def rhs(t, x):
+        q, w = x[:4], x[4:]
+        u = np.asarray(sol.control(t), float).reshape(3)
+        qd = 0.5 * np.concatenate([[-q[1:] @ w], q[0] * w + np.cross(q[1:], w)])
+        return np.concatenate([qd, (u - np.cross(w, J * w)) / J])
+    ts, xs = [0.0], [np.concatenate([p.q0, p.omega0])]
+    pts = np.unique(np.concatenate([[0.0, sol.tf], sol.t]))
+    for a, b in zip(pts[:-1], pts[1:]):
+        r = solve_ivp(rhs, (a, b), xs[-1], method="DOP853", rtol=1e-11, atol=1e-12, t_eval=np.linspace(a, b, 5)[1:])
+        ts.extend(r.t.tolist())
+        xs.extend(r.y.T)
+    return np.array(ts), np.array(xs)
+
+
+def test_a_penalised_answer_is_certified_as_its_control_flies():
+    from solvers.cone_penalty import solve_penalised
+    p = SlewProblem.from_dict(AUDIT)
+    pen = solve_penalised(p, solve(p, method="collocation"))
+    assert pen.success, pen.message
+    v = pen.verification
+    assert v["control_clearance"]["passed"] and v["control_replay"]["passed"]
+    t, x = _fly_control(p, pen)
+    flown = margins(p, x[:, 0:4]).min()
+    assert flown >= -1e-6
+    # the certified value is a lower bound of what flies
+    assert v["control_clearance"]["value"] <= flown + 1e-9
+    s_end = qrotate(x[-1, 0:4], p.sensor_axis)
+    assert math.acos(min(1.0, float(s_end @ _unit(p.sensor_target)))) < 1e-5

@@ -203,3 +203,22 @@ def test_auto_reads_a_pointing_slews_singular_arc_before_refining():
     assert "exact refinement skipped: collocation's torque on axis 1 is interior" in sol.route
     assert sol.tf == pytest.approx(1.8300916, rel=1e-5)
     assert sol.verification["boundary_attitude_error"]["passed"]
+
+
+def test_a_reversed_sensor_is_named_in_the_failure():
+    """The pointing condition (sensor parallel to the target) has a root with the sensor
+    reversed; a candidate that converges there fails its verification with 3.14 rad, and the
+    message says what that means (two audit cases under method="indirect", session 31)."""
+    from solvers.attitude_bvp import AttitudeBVP
+    from solvers.verify import DEFAULT_TOLS, boundary_checks, failure_text
+    from slew_env.core.quaternion import qmul
+    p = SlewProblem(inertia=[1.0, 0.8, 0.6], sensor_axis=[1.0, 0.0, 0.0], sensor_target=[0.3, 0.5, 0.81])
+    bvp = AttitudeBVP(p)
+    y = np.zeros(14)
+    y[0:4] = qmul(bvp.qf, np.array([0.0, 0.0, 0.0, 1.0]))      # then half a turn about body z ⊥ sensor
+    checks = boundary_checks(bvp, y, DEFAULT_TOLS)
+    assert checks["boundary_attitude_error"]["value"] == pytest.approx(np.pi, abs=1e-9)
+    assert "sensor ends pointing away from the target" in failure_text(checks)
+    y[0:4] = bvp.qf
+    ok = boundary_checks(bvp, y, DEFAULT_TOLS)
+    assert ok["boundary_attitude_error"]["passed"] and "note" not in ok["boundary_attitude_error"]
