@@ -240,3 +240,31 @@ def test_a_bang_bang_optimum_shows_no_singular_arc_in_collocation():
     col_s = solve_collocation(SINGULAR)
     text = singular_arc_evidence(SINGULAR, col_s)
     assert text is not None and "interior over" in text
+
+
+# the session-31 replay audit's full-attitude problem 106 (runs/s31/replay): a 26° slew whose
+# collocation torque is interior on 5 % of x's samples and 2.5 % of z's
+AUDIT_106 = {"inertia": [0.530098590725567, 0.8218393595384945, 0.4410482181225713],
+             "torque_max": [1.4363117930830123, 1.4941903972365447, 0.9183002429882449],
+             "q0": [-0.7819504544458918, 0.6060131761949711, 0.11204884052661164, -0.09352312230987722],
+             "qf": [-0.8398560955425425, 0.4615985212317799, 0.2750661242122228, -0.07685812440813151]}
+
+
+def test_pulses_on_every_interior_axis_when_the_singular_ones_are_not_enough():
+    """With pulse pairs only on the axis interior on over 10 % of the samples, no round of the
+    switch-time optimisation was feasible and ``auto`` returned collocation's answer, whose
+    switch times miss the target when flown; the fallback round puts pulses on z too."""
+    p = SlewProblem.from_dict(AUDIT_106)
+    col = solve(p, method="collocation")
+    bvp = AttitudeBVP(p)
+    args = (np.asarray(col.t) / bvp.tau, col.u, p.torque_max, [np.asarray(s) / bvp.tau for s in col.switch_times],
+            col.u_first)
+    _, axes, _ = sequence_from_samples(*args, extra_pairs=4)
+    _, axes_all, _ = sequence_from_samples(*args, extra_pairs=4, singular_share=0.0)
+    assert np.bincount(axes, minlength=3)[2] == 1 < np.bincount(axes_all, minlength=3)[2]    # z's pulses
+    bang, _ = bang_bang_answer(p, col, time_budget=2.0)
+    assert bang is not None and bang.success, "no switch-time answer"
+    assert bang.tf < col.tf
+    sol = solve(p, warm_start=None)
+    assert sol.success and sol.method in ("indirect", "switch-time"), sol.route
+    assert sol.tf == pytest.approx(0.7307206172, rel=1e-8)
