@@ -108,9 +108,12 @@ CONE_WARM_BUDGET = 0.2
 CONE_CHALLENGE_GATE = 1.0
 CONE_CHALLENGE_MODES = ("gated", "always", "never")
 CONE_CANDIDATE_CAP = 0.06
-# a cone warm start's candidates with touches are tried in order of their starting residual
-# (``_ranked_by_starting_residual``), not in the model's order
+# a cone warm start whose candidates are cheap to make (``RANKS_CANDIDATES``: the shipped one) has
+# those with touches tried in order of their starting residual (``_ranked_by_starting_residual``),
+# not in the model's order; the residuals may take this share of the warm start's budget (the
+# shipped model's: 1.1 ms a problem, median, 1.3 ms p95, runs/s31/review/r_upfront_cost.py)
 CONE_RANK_CANDIDATES = True
+CONE_RANK_SHARE = 0.1
 REFINE_CAP_AFTER_WARM = 0.6   # s: auto's exact refinement after collocation when the learned guess failed
 # s: auto's bang-bang switch-time optimisation when no exact extremal refines a collocation
 # answer (three rounds of 15-250 ms each on held-out singular problems)
@@ -1111,7 +1114,8 @@ def _warm_start(prob, method, warm_start, options, split=False):
     opts = {k: v for k, v in options.items() if k != "warm_budget"}
     skipped = []
     if prob.cones:
-        sol = _solve_learned_cones(prob, g, opts, budget, errors=skipped)
+        sol = _solve_learned_cones(prob, g, opts, budget, errors=skipped,
+                                   rank=bool(getattr(model, "RANKS_CANDIDATES", False)))
     else:
         sol = _guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
@@ -1292,22 +1296,25 @@ def _cone_neighbour_starts(prob) -> list:
         return []
 
 
-def _solve_learned_cones(prob, g, options, budget, cap=None, errors=None) -> SlewSolution:
+def _solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=False) -> SlewSolution:
     """A guess for a problem with keep-out cones, tried candidate by candidate: with
     ``touches``, the touch-point extremal (``cone_touch.solve_touch_guess``, switch-time
     formulation first when the guess has a structure); without, the extremal of the problem
     without cones, accepted only if its path clears every cone (certified). A deferred
     candidate that cannot be made (a model's error) is skipped, and its error added to
-    ``errors`` (a list) where given. With ``CONE_RANK_CANDIDATES`` the candidates with touches
-    are tried in order of their starting residual (``_ranked_by_starting_residual``)."""
+    ``errors`` (a list) where given. With ``rank`` (a model whose candidates are cheap to make,
+    ``RANKS_CANDIDATES``; and ``CONE_RANK_CANDIDATES``) every candidate is made first and those
+    with touches are tried in order of their starting residual (``_ranked_by_starting_residual``,
+    within ``CONE_RANK_SHARE`` of the budget): a candidate that cannot be made is then reported
+    even where an earlier one converges."""
     from .cone_touch import solve_touch_guess
     t0 = time.perf_counter()
     tried, last = 0, None
     nit = nfev = 0
     skipped = [] if errors is None else errors
     cands = g.iter_all(errors=skipped)
-    if CONE_RANK_CANDIDATES:
-        cands = _ranked_by_starting_residual(prob, list(cands))
+    if rank and CONE_RANK_CANDIDATES:
+        cands = _ranked_by_starting_residual(prob, list(cands), deadline=t0 + CONE_RANK_SHARE * budget)
     for cand in cands:
         left = min(budget - (time.perf_counter() - t0), CONE_CANDIDATE_CAP if cap is None else cap)
         if left <= 0.0:
@@ -1335,19 +1342,20 @@ def _solve_learned_cones(prob, g, options, budget, cap=None, errors=None) -> Sle
     return last
 
 
-def _ranked_by_starting_residual(prob, cands) -> list:
+def _ranked_by_starting_residual(prob, cands, deadline=math.inf) -> list:
     """``cands`` with those that have touches reordered by their starting residual
     (``cone_touch.starting_residuals``, lowest first; ties keep their order), each in the place
     of one that has touches; the others keep their places. On 200 held-out problems with every
     candidate run on its own (``runs/s31/all_cands.py``, ``rank_sim.py``), the nearest
     solutions' order put the first that converges at a median of 35.5 ms, this order at 30.9 ms
     (the residuals included, 2.5 ms), with the same problems converging and fewer answers
-    slower than the best candidate's (15 against 20)."""
+    slower than the best candidate's (15 against 20). Residuals not evaluated by ``deadline``
+    count as infinite (those candidates keep their order, after the others)."""
     from .cone_touch import starting_residuals
     slots = [k for k, c in enumerate(cands) if c.touches]
     if len(slots) < 2:
         return cands
-    keys = dict(zip(slots, starting_residuals(prob, [cands[k] for k in slots])))
+    keys = dict(zip(slots, starting_residuals(prob, [cands[k] for k in slots], deadline=deadline)))
     out = list(cands)
     for k, j in zip(slots, sorted(slots, key=lambda j: keys[j])):
         out[k] = cands[j]

@@ -74,6 +74,9 @@ def cone_clearances(problem, t, q, omega):
       the smaller end value minus ``B Δt² / 8``; used where ``sin θ`` is bounded away from 0
       over the step. This one is what certifies paths that ride a cone boundary.
     """
+    t, q, omega = np.asarray(t, float), np.asarray(q, float), np.asarray(omega, float)
+    if not (t.shape[0] == q.shape[0] == omega.shape[0]):
+        raise ValueError(f"t, q, omega: one row per sample, got {t.shape[0]}, {q.shape[0]} and {omega.shape[0]}")
     if q.shape[0] < 2 or not problem.cones:
         return []
     mar = cone_margins(problem, q)

@@ -343,8 +343,8 @@ def _verified_solution(bvp, problem, seed, z, T, nodes, tols):
                          np.ones((Y_out.shape[0], 3))) * umax0
     # the returned control exactly as ``control(t)`` gives it (linear between the samples: the
     # quadratic through the two ends and their mean), RK4 with 4 steps an interval; its path is
-    # what a user flies, so its clearance is certified too (the penalised flow's own path cleared
-    # a cone by 1e-6 rad where this one entered it by 1.7e-6: runs/s31/replay, the audit)
+    # what a user flies, so its clearance is certified too (where the penalised flow's own path
+    # cleared a cone, certified +2.5e-7 rad, this one entered it by 1.7e-6: runs/s31/replay, the audit)
     t_fl, X_fl, _ = replay_quadratic_control(np.concatenate([problem.q0, problem.omega0]), np.ascontiguousarray(t_out),
                                              np.ascontiguousarray(u), np.ascontiguousarray(0.5 * (u[:-1] + u[1:])),
                                              np.array(problem.torque_max, float), math.inf,
@@ -376,8 +376,9 @@ def _verified_solution(bvp, problem, seed, z, T, nodes, tols):
         status, msg = STATUS_VERIFICATION_FAILED, f"Penalised extremal found but {text}."
     else:
         status = STATUS_SUCCESS
-        msg = (f"Verified penalised extremal (ε = {bvp.eps:g}, w = {bvp.weight:g}): it clears every cone at every "
-               f"instant, flown by its returned control too (certified {min(cert, cert_fl):.2g} rad), and its tf is {100 * gap:+.3f} % from the collocation answer; "
+        msg = (f"Verified penalised extremal (ε = {bvp.eps:g}, w = {bvp.weight:g}): it keeps out of every cone at "
+               f"every instant, flown by its returned control too (certified clearance {min(cert, cert_fl):.2g} rad, "
+               f"tolerance {CLEARANCE_TOL:g}), and its tf is {100 * gap:+.3f} % from the collocation answer; "
                f"an approximation of the constrained optimum, not its exact extremal.")
     return SlewSolution(
         not text, status, msg, 0, 0, 0.0, tf=tf, tf_tol=max(abs(gap) * tf, float(seed.tf_tol) if seed.tf_tol == seed.tf_tol

@@ -47,7 +47,7 @@ STRUCTURE_REPAIRS = 3     # re-solves of the switch-time problem with the struct
 # A learned candidate's switch-time Newton gives up when, after this many iterations, its residual
 # has not once come below this (``structured_newton``'s ``stall``). On 100 held-out problems
 # (runs/s31/cand_trace.py, trace_an2.py) every candidate that converged had its residual below
-# 0.1 within 5 Jacobian evaluations, while the failing ones spent 33 ms each, a median, and most
+# 0.1 within 6 Jacobian evaluations, while the failing ones spent 33 ms each, a median, and most
 # of it with the residual above 0.1: the next candidate can use that time
 LEARNED_STALL = (8, 0.1)
 # ... and it iterates with the integrator at this tolerance until its residual is below 1e3 times
@@ -583,12 +583,13 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     return sol
 
 
-def starting_residuals(problem, guesses) -> list:
+def starting_residuals(problem, guesses, deadline=math.inf) -> list:
     """For each guess, the switch-time residual (max norm) as given, with its own structure,
     touches and multipliers: the first thing ``solve_touch_guess`` evaluates, here without the
     Jacobian and at ``LEARNED_COARSE_RTOL``. ``inf`` where a guess has no touches or no
     structure, names a cone the problem does not have, or its flow fails, and for all of them
-    where the bound is not per-axis. A learned route's candidates are tried in order of it
+    where the bound is not per-axis, and for those not reached by ``deadline``
+    (``time.perf_counter()``). A learned route's candidates are tried in order of it
     (``solvers.api._solve_learned_cones``)."""
     out = [math.inf] * len(guesses)
     if not math.isinf(problem.torque_norm) or problem.sensor_axis is None or not problem.cones:
@@ -598,6 +599,8 @@ def starting_residuals(problem, guesses) -> list:
     if LEARNED_COARSE_RTOL is not None and LEARNED_COARSE_RTOL > bvp.rtol:
         bvp.rtol, bvp.atol = LEARNED_COARSE_RTOL, LEARNED_COARSE_RTOL * bvp.atol / bvp.rtol
     for k, guess in enumerate(guesses):
+        if time.perf_counter() > deadline:
+            break
         st = _structure_of(guess, bvp.tau) if guess.touches else None
         if st is None or any(c >= len(problem.cones) for c, _, _ in guess.touches):
             continue

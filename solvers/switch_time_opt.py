@@ -368,21 +368,27 @@ def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_
     # more pulse pairs approximate a singular arc better: rounds with more, the fastest kept,
     # until a round gains less than 1e-6 (relative) or the time is spent
     r = None
+    seen = set()
 
     def round_of(extra, share):
-        """One round's optimised sequence, or ``None`` when no time is left."""
+        """One round's optimised sequence; ``None`` when no time is left or the sequence is one
+        an earlier round tried."""
         left = time_budget - (time.perf_counter() - t0)
         if left <= 0.0:
             return None
         signs0, axes, times = sequence_from_samples(np.asarray(col.t) / tau, col.u, problem.torque_max, sw,
                                                     col.u_first, extra_pairs=extra, singular_share=share)
+        key = (signs0.tobytes(), axes.tobytes(), times.tobytes())
+        if key in seen:
+            return None
+        seen.add(key)
         return optimise(problem, signs0, axes, times, col.tf / tau, time_budget=left, max_iter=max_iter, bvp=bvp)
 
     for extra in PULSE_ROUNDS if pulse_rounds is None else pulse_rounds:
-        ri = round_of(extra, 0.1)
-        if ri is None:
+        if time.perf_counter() - t0 >= time_budget:
             break
-        if not ri.success:
+        ri = round_of(extra, 0.1)
+        if ri is None or not ri.success:
             continue
         if r is not None and ri.T > r.T * (1.0 - 1e-6):
             r = ri if ri.T < r.T else r

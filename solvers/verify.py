@@ -121,11 +121,9 @@ def boundary_checks(bvp, yT, tols):
     checks["boundary_attitude_error"] = make_check(att, tols["boundary_attitude_error"],
                                                    att <= tols["boundary_attitude_error"])
     if bvp.pointing and att > 0.5 * math.pi:
-        # the pointing residual (the sensor parallel to the target) has a root with the sensor
-        # reversed, which a Newton iteration can converge to: say so, an angle of 3.14 alone
-        # does not
-        checks["boundary_attitude_error"]["note"] = ("the sensor ends pointing away from the target (a root "
-                                                     "of the pointing condition with the sensor reversed)")
+        # the pointing residual (the sensor parallel to the target) is also zero with the sensor
+        # reversed, where a Newton iteration can end: say so, an angle of 3.14 alone does not
+        checks["boundary_attitude_error"]["note"] = "the sensor ends pointing away from the target"
     checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                                rate_nd <= tols["boundary_rate_error"])
     if bvp.pointing:

@@ -95,3 +95,16 @@ def test_a_path_that_is_not_finite_certifies_nothing():
     w = x[:, 4:7].copy()
     w[5, 1] = np.nan
     assert all(math.isnan(v) for v in cone_clearances(p, t, x[:, 0:4], w)[0])
+
+
+def test_a_zero_quaternion_gives_nan_margins_and_mismatched_arrays_are_refused():
+    p = _problem()
+    t, x = _path(p, n=200, seed=0)
+    q = x[:, 0:4].copy()
+    q[50] = 0.0
+    assert np.isnan(cone_margins(p, q)[50]).all()
+    assert math.isnan(certified_min_margin(p, t, q, x[:, 4:7])[1])
+    with pytest.raises(ValueError, match="one row per sample"):
+        cone_clearances(p, t[:-5], x[:, 0:4], x[:, 4:7])
+    with pytest.raises(ValueError, match="one row per sample"):
+        cone_clearances(p, t, x[:, 0:4], x[:-1, 4:7])

@@ -248,3 +248,16 @@ def test_a_penalised_answer_is_certified_as_its_control_flies():
     assert v["control_clearance"]["value"] <= flown + 1e-9
     s_end = qrotate(x[-1, 0:4], p.sensor_axis)
     assert math.acos(min(1.0, float(s_end @ _unit(p.sensor_target)))) < 1e-5
+
+
+def test_a_penalised_answer_whose_control_enters_a_cone_is_refused(monkeypatch):
+    """Returned with every 4th sample (as before session 31), the same answer's control, flown,
+    enters the cone; the check on the flown path refuses it where the flow's own path passed."""
+    import solvers.cone_penalty as cpn
+    monkeypatch.setattr(cpn, "RETURN_EVERY", 4)
+    p = SlewProblem.from_dict(AUDIT)
+    pen = cpn.solve_penalised(p, solve(p, method="collocation"))
+    v = pen.verification
+    assert not pen.success and "control_clearance" in pen.message
+    assert v["cone_clearance"]["passed"] and not v["control_clearance"]["passed"]
+    assert v["control_clearance"]["value"] < -1e-6

@@ -53,11 +53,19 @@ def test_the_coarse_phase_converges_to_the_same_extremal_at_the_problems_toleran
 
 
 def test_a_coarse_iterate_is_never_declared_converged(touch_answer):
-    """At a coarse tolerance of 1e-6 the iterations hand over at a residual of 1e-3, and only
-    the problem's tolerance may end them as converged."""
-    bvp, tp, z, st, T0, tc, nu = _newton_parts(_answer_guess(touch_answer))
-    x, ok, nit, _, rn, _ = ct.structured_newton(tp, z, st, T0, tc, nu, tol=1e-11, coarse_rtol=1e-6)
-    assert ok and rn < 1e-11
+    """With a tolerance looser than the hand-over residual (1e-3 against 1e3 · 1e-8), the coarse
+    iterates reach it first; convergence is still declared on a residual evaluated at the
+    problem's integrator tolerance."""
+    bvp, tp, z, st, T0, tc, nu = _newton_parts(rough_answer_guess(touch_answer, 10.0, 0.02, 0.03, 1.3, seed=3))
+    fine = (bvp.rtol, bvp.atol)
+    evals = []
+    real = ct._structured_residual
+    ct._structured_residual = lambda tp_, *a: evals.append(tp_.bvp.rtol) or real(tp_, *a)
+    try:
+        x, ok, nit, _, rn, _ = ct.structured_newton(tp, z, st, T0, tc, nu, tol=1e-3, coarse_rtol=1e-8)
+    finally:
+        ct._structured_residual = real
+    assert ok and rn < 1e-3 and evals[-1] == fine[0] and evals[0] == 1e-8
     # with too few iterations to hand over and converge, no success on a coarse residual
     bvp2, tp2, z2, st2, T2, tc2, nu2 = _newton_parts(rough_answer_guess(touch_answer, 10.0, 0.02, 0.03, 1.3, seed=3))
     _, ok2, _, _, rn2, _ = ct.structured_newton(tp2, z2, st2, T2, tc2, nu2, max_iter=2, coarse_rtol=1e-8)
@@ -129,12 +137,50 @@ def test_the_learned_cone_route_tries_the_lowest_starting_residual_first(touch_a
     tried = []
     real = ct.solve_touch_guess
     monkeypatch.setattr(ct, "solve_touch_guess", lambda p, c, **k: tried.append(c.source) or real(p, c, **k))
-    out = api._solve_learned_cones(TOUCH, g, {}, 1.0)
+    out = api._solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
     assert out.success and tried == ["exact"] and out.n_candidates == 1
+    # a model that does not opt in (RANKS_CANDIDATES) keeps its order, and its deferred
+    # candidates are made only when reached
+    tried.clear()
+    made = []
+    g2 = Guess(rough.costate0, rough.tf, rough.switch_times, rough.u_first, source="rough", touches=rough.touches,
+               candidates=[lambda: made.append(1) or exact])
+    api._solve_learned_cones(TOUCH, g2, {}, 1.0)
+    assert tried[0] == "rough"
+    # nor with the ranking switched off
     monkeypatch.setattr(api, "CONE_RANK_CANDIDATES", False)
     tried.clear()
-    api._solve_learned_cones(TOUCH, g, {}, 1.0)
+    api._solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
     assert tried[0] == "rough"
+
+
+def test_the_ranking_keeps_to_its_share_of_the_budget(touch_answer):
+    exact = _answer_guess(touch_answer, source="exact")
+    rough = rough_answer_guess(touch_answer, 20.0, 0.05, 0.05, 1.5, seed=2, source="rough")
+    assert starting_residuals(TOUCH, [rough, exact], deadline=0.0) == [math.inf, math.inf]
+    # past its deadline the candidates keep the model's order
+    assert [c.source for c in api._ranked_by_starting_residual(TOUCH, [rough, exact], deadline=0.0)] == \
+        ["rough", "exact"]
+
+
+def test_the_shipped_cone_warm_start_opts_in_to_the_ranking():
+    from solvers.warmstart import default_cone_model
+    assert default_cone_model().RANKS_CANDIDATES is True
+
+
+def test_an_answer_already_converged_skips_the_event_driven_newton(touch_answer, monkeypatch):
+    """The switch-time answer whose event-driven residual is below the Newton's tolerance is the
+    answer (no Newton call); where it is not, the Newton runs from it."""
+    calls = []
+    real = ct.newton
+    monkeypatch.setattr(ct, "newton", lambda tp, x, **k: calls.append(1) or real(tp, x, **k))
+    g = rough_answer_guess(touch_answer, 10.0, 0.02, 0.03, 1.3, seed=3)
+    a = solve_touch_guess(TOUCH, g, smoothing=False)
+    assert a.success and calls == []
+    monkeypatch.setattr(ct, "NEWTON_TOL", 0.0)
+    b = solve_touch_guess(TOUCH, g, smoothing=False)
+    assert b.success and len(calls) >= 1
+    assert b.tf == pytest.approx(a.tf, rel=1e-12)
 
 
 def test_a_verified_touch_answer_is_the_same_with_its_pieces_reused(touch_answer):

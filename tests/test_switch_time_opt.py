@@ -268,3 +268,23 @@ def test_pulses_on_every_interior_axis_when_the_singular_ones_are_not_enough():
     sol = solve(p, warm_start=None)
     assert sol.success and sol.method in ("indirect", "switch-time"), sol.route
     assert sol.tf == pytest.approx(0.7307206172, rel=1e-8)
+
+
+def test_the_fallback_round_does_not_repeat_a_sequence_already_tried(monkeypatch):
+    """Where the torque is interior on one axis only, pulses 'on every interior axis' are the
+    4-pair round's pulses: the fallback round is not run again on them."""
+    from types import SimpleNamespace
+    from solvers import switch_time_opt as sto
+    t = np.linspace(0.0, 2.0, 41)
+    u = np.ones((41, 3))
+    u[10:30, 0] = 0.1                     # axis x interior on half the samples, the others saturated
+    col = SimpleNamespace(t=t, u=u, tf=2.0, tf_tol=1e-3, u_first=[1, 1, 1], switch_times=[np.array([1.0])] * 3)
+    p = SlewProblem([1.0, 1.0, 1.0], qf=[math.cos(0.3), math.sin(0.3), 0.0, 0.0])
+    tried = []
+
+    def optimise(problem, signs0, axes, times, T, **kw):
+        tried.append((axes.tobytes(), times.tobytes()))
+        return SimpleNamespace(success=False)
+    out = sto.answer_from_collocation(p, col, AttitudeBVP(p), optimise, 5.0, None, 10, __import__("time").perf_counter())
+    assert out == (None, None)
+    assert len(tried) == len(set(tried)) == len(sto.PULSE_ROUNDS)

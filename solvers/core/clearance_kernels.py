@@ -10,7 +10,9 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+# error_model="numpy": a zero quaternion row gives NaN margins (a check that fails), not a
+# ZeroDivisionError out of a verification
+@njit(cache=True, error_model="numpy")
 def path_margins(q, s, axes, half):
     """``(n, n_cones)`` clearance margins ``angle(R(q_i) s, a_k) - α_k`` (atan2 form), with
     ``q`` (n, 4) not necessarily unit and ``s`` the body sensor axis as given."""
@@ -36,7 +38,7 @@ def path_margins(q, s, axes, half):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def certified_bounds(t, mar, wn, half, amax):
     """Per cone ``[sample minimum, certified minimum, margin at t0, margin at tN]`` (n_cones, 4)
     from the margins ``mar`` (n, n_cones), the rates' norms ``wn`` (n) and the bound ``amax`` on
