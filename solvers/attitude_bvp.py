@@ -81,6 +81,16 @@ def step_allowance(m, record=0):
     return max(MIN_STEPS, int(n)), True
 
 
+def step_budget(m):
+    """``step_allowance`` for the compiled calls that fly several arcs in one (switch-time and
+    touch-point sequences, ``core.switch_sequence``, ``core.touch_sequence``): a 1-element int64
+    array of the steps all their arcs together may take (the kernels decrement it), 2⁶² outside
+    a solve's deadline or when it leaves ``MAX_STEPS`` or more. Always an array, so that the
+    kernels run the one specialisation ``load_kernels`` compiled."""
+    n, capped = step_allowance(m)
+    return np.array([n if capped else 1 << 62], dtype=np.int64)
+
+
 def _learn_step_cost(m, seconds, steps):
     """A moving average of the CPU time a step takes (``seconds``: this thread's CPU time, so
     that a wait for another thread is not counted), each new value held within a factor 2 of

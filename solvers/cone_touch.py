@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from .attitude_bvp import AttitudeBVP, NY, Trajectory, flow_failure
+from .attitude_bvp import AttitudeBVP, NY, Trajectory, flow_failure, step_budget
 from .clearance import CLEARANCE_TOL, certified_replay, cone_margins
 from .core import attitude_flow as af
 from .core.cone_penalty import cone_matrix
@@ -190,7 +190,7 @@ def _structured_residual(tp, z, times, T, tc, nu, st, want_jac):
                                 np.ascontiguousarray(tc, dtype=float), np.ascontiguousarray(nu, dtype=float),
                                 tp.Ms, tp.cos_a_array, np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax,
                                 bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen, bool(want_jac),
-                                r[1:1 + n], S_jac, r[1 + n:1 + n + 2 * K], H_jac)
+                                r[1:1 + n], S_jac, r[1 + n:1 + n + 2 * K], H_jac, step_budget(nx if want_jac else 0))
     if not ok:
         return None, None
     rt, dry, drT = bvp.terminal(y, T)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .attitude_bvp import NY
+from .attitude_bvp import NY, step_budget
 from .core.switch_sequence import sequence_end
 from .core.touch_sequence import touch_sequence_flow
 
@@ -90,7 +90,7 @@ def _residual(bvp, z, times, T, st, want_jac):
                                 np.ascontiguousarray(st.axes, dtype=np.int64), float(T), _NO_TOUCH, _NO_TOUCH,
                                 _NO_CONES, _NO_TOUCH, np.asarray(st.signs0, dtype=float), bvp.J, bvp.umax, bvp.mode,
                                 bvp.p, bvp.eps, bvp.rtol, bvp.atol, bvp.pen, bool(want_jac), r[1:1 + n], S_jac,
-                                _NO_TOUCH, np.zeros((0, nx)))
+                                _NO_TOUCH, np.zeros((0, nx)), step_budget(nx if want_jac else 0))
     if not ok:
         return None, None
     rt, dry, drT = bvp.terminal(y, T)
@@ -295,7 +295,7 @@ def propagate_sequence(bvp, times, axes, signs0, T, y0, want_jac):
     y, dx, M_total, nfev, ok = sequence_end(
         np.asarray(y0, dtype=float), np.ascontiguousarray(times, dtype=float), np.ascontiguousarray(axes, dtype=np.int64),
         float(T), np.asarray(signs0, dtype=float), bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps, bvp.rtol, bvp.atol,
-        bvp.pen, bool(want_jac))
+        bvp.pen, bool(want_jac), step_budget(7 if want_jac else 0))
     if not ok:
         return None
     r, D, _ = bvp.terminal(y, T)

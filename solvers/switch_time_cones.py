@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from .attitude_bvp import AttitudeBVP
+from .attitude_bvp import AttitudeBVP, step_budget
 from .core.attitude_flow import MODE_BANG
 from .core.cone_penalty import cone_matrix, sampled_margins
 from .core.switch_sequence import sequence_samples
@@ -110,7 +110,7 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             if time.perf_counter() - t_start > time_budget:
                 raise TimeoutError
             X, dX, yT, dx, nfev, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0,
-                                                       fracs, *args, jac)
+                                                       fracs, *args, jac, step_budget(7 if jac else 0))
             stats["nfev"] += nfev
             if not ok:
                 raise FloatingPointError("propagation failed")
@@ -252,7 +252,8 @@ def _new_samples(y0, v, n, axes, signs0, args, cones, fracs, deadline):
     if time.perf_counter() > deadline:
         raise TimeoutError
     dense = np.linspace(0.0, 1.0, DENSE_SAMPLES)
-    X, *_, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0, dense, *args, False)
+    X, *_, ok = sequence_samples(y0, np.ascontiguousarray(v[:n]), axes, float(v[n]), signs0, dense, *args, False,
+                                 step_budget(0))
     if not ok:
         raise FloatingPointError("propagation failed on the dense pass")
     g = _margins(X, cones)
@@ -300,7 +301,8 @@ def load_kernels():
     y0 = np.zeros(14)
     y0[0] = 1.0
     X, dX, *_ = sequence_samples(y0, np.array([0.5]), np.array([0], dtype=np.int64), 1.0, np.ones(3),
-                                 np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), True)
+                                 np.array([0.5]), J, J, MODE_BANG, 0.0, 1e-2, 1e-12, 1e-13, np.zeros(0), True,
+                                 step_budget(7))
     sampled_margins(X, dX, np.eye(4)[None, :, :], np.array([0.1]))
     _COMPILED.append(True)
 

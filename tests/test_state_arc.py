@@ -5,7 +5,7 @@ import pytest
 
 from solvers.core.attitude_flow import MODE_BANG, NY
 from solvers.core.state_arc import state_arc
-from solvers.core.switch_sequence import _arc_transition, _fixed_arc
+from solvers.core.switch_sequence import _arc_transition, _fixed_arc, no_step_budget
 
 NO_PEN = np.empty(0)
 
@@ -24,7 +24,7 @@ def _augmented(x, dt, J, umax, signs, m, rtol=1e-12, atol=1e-12):
     Y0[:7] = x
     for c in range(m):
         Y0[NY + c * m + c] = 1.0
-    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, MODE_BANG, 0.0, 0.0, rtol, atol, NO_PEN)
+    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, MODE_BANG, 0.0, 0.0, rtol, atol, NO_PEN, no_step_budget())
     Phi = np.array([[Y[NY + i * m + c] for c in range(m)] for i in range(min(m, 7))]).reshape(min(m, 7), m)
     return Y, Phi, ok
 
@@ -69,7 +69,8 @@ def test_arc_transition_uses_the_augmented_flow_when_costates_are_not_zero():
     y = np.zeros(NY)
     y[:7] = x
     y[7:] = rng.normal(size=7)
-    y1, _, ok = _arc_transition(y, dt, 0, signs, J, umax, MODE_BANG, 0.0, 0.0, 1e-12, 1e-12, NO_PEN)
+    y1, _, ok = _arc_transition(y, dt, 0, signs, J, umax, MODE_BANG, 0.0, 0.0, 1e-12, 1e-12, NO_PEN,
+                                no_step_budget())
     Y, _, ok2 = _augmented(y[:7], dt, J, umax, signs, 0)
     assert ok and ok2
     # the state does not see the costates (only the step sizes do)

@@ -300,3 +300,50 @@ def test_a_stiff_body_does_not_overrun_a_short_budget():
     sol = solvers.solve(STIFF, method="indirect", time_budget=0.05, warm_start=None)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert sol.wall_time < 0.05 + 0.25
+
+
+# the compiled calls that fly several arcs (switch-time and touch-point sequences) share one
+# step budget (attitude_bvp.step_budget), as single propagations have theirs (step_allowance)
+def _stiff_sequence():
+    from solvers.attitude_bvp import AttitudeBVP
+    p = SlewProblem(inertia=[0.001, 1.0, 1.0], torque_max=[1.0, 1.0, 1.0], qf=[0.0, 1.0, 0.0, 0.0])
+    y0 = np.zeros(14)
+    y0[0] = 1.0
+    return AttitudeBVP(p), y0
+
+
+def test_sequence_kernels_stop_when_their_steps_run_out():
+    from solvers.core.switch_sequence import sequence_end, sequence_samples
+    from solvers.core.state_arc import state_arc
+    bvp, y0 = _stiff_sequence()
+    args = (np.array([2.5]), np.array([0], dtype=np.int64), 5.0, np.ones(3), bvp.J, bvp.umax, bvp.mode, bvp.p,
+            bvp.eps, bvp.rtol, bvp.atol, bvp.pen)
+    free = np.array([1 << 62], dtype=np.int64)
+    assert sequence_end(y0, *args, True, free)[-1]
+    used = (1 << 62) - int(free[0])
+    assert used > 1000                                   # a stiff body: many steps
+    few = np.array([300], dtype=np.int64)
+    assert not sequence_end(y0, *args, True, few)[-1] and few[0] <= 0
+    fracs = np.linspace(0.0, 1.0, 11)
+    few = np.array([300], dtype=np.int64)
+    assert not sequence_samples(y0, args[0], args[1], args[2], args[3], fracs, *args[4:], False, few)[-1]
+    assert sequence_samples(y0, args[0], args[1], args[2], args[3], fracs, *args[4:], False)[-1]   # no budget
+    few = np.array([300], dtype=np.int64)
+    assert not state_arc(y0[:7], 5.0, bvp.umax, bvp.J, 1e-12, 1e-13, True, few)[2] and few[0] <= 0
+
+
+def test_switch_time_and_touch_residuals_keep_to_the_solves_deadline():
+    """Past the solve's deadline the sequences get the floor of 200 steps: the stiff body's
+    5-unit sequence (thousands of steps) fails there instead of running to its end."""
+    from solvers.switch_time import Structure, _residual, propagate_sequence
+    from solvers.deadline import propagation_deadline
+    bvp, y0 = _stiff_sequence()
+    times = np.array([2.5])
+    assert propagate_sequence(bvp, times, np.array([0]), np.ones(3), 5.0, y0, True) is not None
+    st = Structure(np.ones(3), np.array([0], dtype=np.int64), times)
+    z = np.array([0.3, 0.2, 0.1, 0.5, 0.4, 0.3])
+    z /= np.linalg.norm(z)
+    assert _residual(bvp, z, times, 5.0, st, True)[0] is not None
+    with propagation_deadline(time.perf_counter() - 1.0):
+        assert propagate_sequence(bvp, times, np.array([0]), np.ones(3), 5.0, y0, True) is None
+        assert _residual(bvp, z, times, 5.0, st, True)[0] is None

@@ -52,11 +52,14 @@ def _step(Y, h, m, u, J, K0, A, y, dz):
 
 
 @njit(cache=True)
-def state_arc(x0, dt, u, J, rtol, atol, want_phi):
+def state_arc(x0, dt, u, J, rtol, atol, want_phi, steps_left=None):
     """The state ``x0`` (7) flown over ``dt`` (> 0) under the constant torque ``u`` (3), with
     ``Φ`` (7×7; zeros without ``want_phi``). Steps as ``attitude_flow.flow`` with
-    ``h0 = min(0.05, dt)`` and at most 200,000 steps. Returns ``(x(dt), Φ, ok)``; ``ok`` is False
-    if the steps run out or underflow or the result is not finite."""
+    ``h0 = min(0.05, dt)`` and at most 200,000 steps, and at most ``steps_left[0]`` (a 1-element
+    int64 array, decremented by the steps taken; ``None``: no such bound). Returns
+    ``(x(dt), Φ, ok)``; ``ok`` is False if the steps run out or underflow or the result is not
+    finite."""
+    cap = 200000 if steps_left is None else min(200000, steps_left[0])
     m = NX if want_phi else 0
     Y = np.zeros(NX + NX * m)
     Y[:NX] = x0[:NX]
@@ -72,7 +75,7 @@ def state_arc(x0, dt, u, J, rtol, atol, want_phi):
     steps = 0
     ok = True
     while t < dt:
-        if steps >= 200000:
+        if steps >= cap:
             ok = False
             break
         last = False
@@ -100,6 +103,8 @@ def state_arc(x0, dt, u, J, rtol, atol, want_phi):
         K0 = K[12]
         fac = 0.9 * err ** (-1.0 / 8.0) if err > 0.0 else 10.0
         h *= min(10.0, max(0.2, fac))
+    if steps_left is not None:
+        steps_left[0] -= steps
     Phi = np.zeros((NX, NX))
     for i in range(m):
         for c in range(m):

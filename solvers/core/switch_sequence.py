@@ -20,12 +20,24 @@ from .state_arc import state_arc
 
 
 @njit(cache=True)
-def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
+def no_step_budget():
+    """The step budget of a call that has none (``steps_left``: a 1-element array of the steps the
+    calls sharing it may still take, decremented as they go)."""
+    return np.full(1, 1 << 62, np.int64)
+
+
+@njit(cache=True)
+def _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen, steps_left):
     """One arc of fixed ``signs`` over ``dt`` of ``[y, Φ]`` (``m`` sensitivity columns, row-major),
-    as ``AttitudeBVP.arc`` runs it: ``(Y(dt), ok)``, ``ok`` False if it fails or is not finite."""
-    Y, _, _, _, _, status = flow(Y0, dt, m, J, umax, mode, p, eps, signs, rtol, atol, min(0.05, dt), 200000, 0,
-                                 np.empty(0), np.empty((0, NY)), np.empty((0, 3)), np.empty(1),
-                                 np.empty(1, dtype=np.int64), pen, False, np.inf)
+    as ``AttitudeBVP.arc`` runs it: ``(Y(dt), ok)``, ``ok`` False if it fails, is not finite or
+    needs more steps than ``steps_left[0]`` (which it decrements by the steps it took)."""
+    cap = min(200000, steps_left[0])
+    if cap <= 0:
+        return Y0.copy(), False
+    Y, _, _, _, steps, status = flow(Y0, dt, m, J, umax, mode, p, eps, signs, rtol, atol, min(0.05, dt), cap, 0,
+                                     np.empty(0), np.empty((0, NY)), np.empty((0, 3)), np.empty(1),
+                                     np.empty(1, dtype=np.int64), pen, False, np.inf)
+    steps_left[0] -= steps
     if status != FLOW_OK:
         return Y, False
     for i in range(Y.shape[0]):
@@ -43,13 +55,13 @@ def _zero_costates(y):
 
 
 @njit(cache=True)
-def _arc_transition(y, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
+def _arc_transition(y, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen, steps_left):
     """One arc of fixed ``signs`` over ``dt`` from the augmented state ``y``, with the state's
     7×7 transition matrix when ``m`` is 7 (zeros when 0): ``(y(dt), Φ, ok)``. With zero
     costates and no cone penalty the costates stay zero, and the state flows alone
     (``state_arc``: the same steps and states, half the work with ``Φ``)."""
     if mode == MODE_BANG and pen.shape[0] == 0 and _zero_costates(y):
-        x, Phi, ok = state_arc(y, dt, umax * signs, J, rtol, atol, m > 0)
+        x, Phi, ok = state_arc(y, dt, umax * signs, J, rtol, atol, m > 0, steps_left)
         out = np.zeros(NY)
         out[:7] = x
         return out, Phi, ok
@@ -57,7 +69,7 @@ def _arc_transition(y, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen):
     Y0[:NY] = y
     for c in range(m):
         Y0[NY + c * m + c] = 1.0
-    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen, steps_left)
     Phi = np.zeros((7, 7))
     for i in range(m):
         for c in range(m):
@@ -77,17 +89,19 @@ def _finite_times(times, T):
 
 
 @njit(cache=True)
-def advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
+def advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
+                    steps_left):
     """One arc of fixed ``signs`` over ``dt`` from ``y``, carrying the sensitivity columns
     ``active[:n_active]`` of ``G`` (updated in place; the others are zero and stay so), or none
-    without ``want_jac``: ``(y(dt), ok)``, ``(y, False)`` if the arc fails."""
+    without ``want_jac``: ``(y(dt), ok)``, ``(y, False)`` if the arc fails (``steps_left``:
+    ``_fixed_arc``'s)."""
     m = n_active if want_jac else 0
     Y0 = np.empty(NY + NY * m)
     Y0[:NY] = y
     for i in range(NY):
         for c in range(m):
             Y0[NY + i * m + c] = G[i, active[c]]
-    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+    Y, ok = _fixed_arc(Y0, dt, m, signs, J, umax, mode, p, eps, rtol, atol, pen, steps_left)
     if not ok:
         return y, False
     for i in range(NY):
@@ -117,7 +131,7 @@ def switch_event(y, G, signs, a, j, J, umax, want_jac, S_res, S_jac, active, n_a
 
 
 @njit(cache=True)
-def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
+def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, pen, want_jac, steps_left=None):
     """The end of a bang-bang control with switches at fixed instants, and the end state's
     derivatives in ``[times, T]`` (``solvers.switch_time.propagate_sequence``'s arcs in one
     compiled call). An instant at or after ``T`` does not flip (beyond the horizon); one before
@@ -126,8 +140,11 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
     Returns ``(y(T), dx, M, nfev, ok)``: with ``want_jac``, ``dx`` (7, n + 1) holds
     ``∂x(T)/∂t_k = Φ(T, t_k)(f⁻ - f⁺)`` (switch ``k`` in the caller's order) and ``∂x(T)/∂T``,
     accumulated backwards over the arcs' 7×7 transition matrices, and ``M`` is the transition
-    matrix over ``[0, T]``; without, both are zeros. ``ok`` is False if an arc fails.
+    matrix over ``[0, T]``; without, both are zeros. ``ok`` is False if an arc fails, also for
+    want of steps: ``steps_left`` (a 1-element int64 array, decremented) bounds the steps of all
+    the arcs together (the solve's deadline, ``attitude_bvp.step_budget``); ``None``: no bound.
     """
+    sl = no_step_budget() if steps_left is None else steps_left
     n = times.shape[0]
     m = 7 if want_jac else 0
     dx = np.zeros((7, n + 1))
@@ -145,7 +162,7 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
         raw = T if kk == n else times[order[kk]]
         tk = min(max(raw, 0.0), T)
         if tk > t:
-            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen, sl)
             nfev += 1
             if not ok:
                 return y, dx, M, nfev, False
@@ -178,7 +195,8 @@ def sequence_end(y0, times, axes, T, signs0, J, umax, mode, p, eps, rtol, atol, 
 
 
 @njit(cache=True)
-def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, rtol, atol, pen, want_jac):
+def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, rtol, atol, pen, want_jac,
+                     steps_left=None):
     """The states of a bang-bang control with switches at fixed instants at the sample instants
     ``fracs · T`` (``fracs`` sorted, in [0, 1]), and their derivatives in ``[times, T]``, for
     path constraints (keep-out cones) in switch-time optimisation.
@@ -189,8 +207,10 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
     not). Switch instants are clipped to ``[0, T]`` as in ``sequence_end``. Without
     ``want_jac`` the states alone (``dX`` and ``dx`` zeros): the arcs carry no transition matrix.
 
-    Returns ``(X (M, 7), dX (M, 7, n + 1), y(T), dx (7, n + 1), nfev, ok)``.
+    Returns ``(X (M, 7), dX (M, 7, n + 1), y(T), dx (7, n + 1), nfev, ok)``; ``steps_left``:
+    ``sequence_end``'s.
     """
+    sl = no_step_budget() if steps_left is None else steps_left
     n = times.shape[0]
     M = fracs.shape[0]
     X = np.zeros((M, 7))
@@ -221,7 +241,7 @@ def sequence_samples(y0, times, axes, T, signs0, fracs, J, umax, mode, p, eps, r
         e = order[kk] if kk < n + M else -1
         tk = T if e < 0 else ev_t[e]
         if tk > t:
-            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen)
+            y, Phi, ok = _arc_transition(y, tk - t, m, signs, J, umax, mode, p, eps, rtol, atol, pen, sl)
             nfev += 1
             if not ok:
                 return X, dX, y, dx, nfev, False

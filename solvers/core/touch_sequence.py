@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from .attitude_flow import NY, ext_rhs
-from .switch_sequence import _finite_times, advance_columns, switch_event
+from .switch_sequence import _finite_times, advance_columns, no_step_budget, switch_event
 
 
 @njit(cache=True)
@@ -70,7 +70,7 @@ def touch_residual(y, M, cos_a):
 
 @njit(cache=True)
 def touch_sequence_flow(y0, G, times, axes, T, tc, nu, Ms, cos_a, signs0, J, umax, mode, p, eps, rtol, atol,
-                        pen, want_jac, S_res, S_jac, H_res, H_jac):
+                        pen, want_jac, S_res, S_jac, H_res, H_jac, steps_left=None):
     """Arcs of ``y0`` (NY,) over ``[0, T]`` with switches of axes ``axes`` at ``times`` and touches
     of cone ``k`` (matrix ``Ms[k]``, ``cos α = cos_a[k]``) at ``tc[k]`` with multipliers ``nu[k]``.
 
@@ -81,8 +81,10 @@ def touch_sequence_flow(y0, G, times, axes, T, tc, nu, Ms, cos_a, signs0, J, uma
     Events at the same instant run switches first, each kind in index order. Instants are not
     clipped to ``[0, T]``: one before 0 acts at 0, and one past ``T`` acts where the flow has
     stopped, at the latest earlier instant (the caller keeps its iterates inside). Returns
-    ``(y(T), ok)``; ``ok`` is False if an arc fails or an instant is not finite.
+    ``(y(T), ok)``; ``ok`` is False if an arc fails or an instant is not finite, also for want of
+    steps (``steps_left``: ``switch_sequence.sequence_end``'s).
     """
+    sl = no_step_budget() if steps_left is None else steps_left
     n = times.shape[0]
     K = tc.shape[0]
     nx = 6 + n + 1 + 2 * K
@@ -109,7 +111,7 @@ def touch_sequence_flow(y0, G, times, axes, T, tc, nu, Ms, cos_a, signs0, J, uma
         dt = t_next - t_prev
         if dt > 0.0:
             y, ok = advance_columns(y, G, active, n_active, dt, signs, J, umax, mode, p, eps, rtol, atol, pen,
-                                    want_jac)
+                                    want_jac, sl)
             if not ok:
                 return y, False
         if t_next > t_prev:
