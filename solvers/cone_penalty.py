@@ -41,7 +41,7 @@ from slew_env import Cone
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qmul
 from .attitude_bvp import AttitudeBVP, NY
-from .clearance import CLEARANCE_TOL, cone_clearances
+from .clearance import CLEARANCE_TOL, certified_min_margin, cone_clearances
 from .core import attitude_flow as af
 from .core import cone_penalty as cp
 from .core.control_replay import replay_quadratic_control
@@ -353,8 +353,7 @@ def _verified_solution(bvp, problem, seed, z, T, nodes, tols):
     crep = max(bvp.attitude_error(x[0:4] / np.linalg.norm(x[0:4])), float(np.linalg.norm(x[4:7] * tau - bvp.wf)))
     crep = crep if crep == crep else math.inf
     checks["control_replay"] = make_check(crep, CONTROL_REPLAY_TOL, crep <= CONTROL_REPLAY_TOL)
-    per_fl = cone_clearances(problem, t_fl, X_fl[:, 0:4], X_fl[:, 4:7])
-    cert_fl = min(c[1] for c in per_fl)
+    cert_fl = certified_min_margin(problem, t_fl, X_fl[:, 0:4], X_fl[:, 4:7])[1]
     cert_fl = cert_fl if cert_fl == cert_fl else -math.inf
     checks["control_clearance"] = make_check(cert_fl, CLEARANCE_TOL, cert_fl >= CLEARANCE_TOL)
     gap = (T * tau - float(seed.tf)) / float(seed.tf)

@@ -491,13 +491,9 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     for k, (c, _, _) in enumerate(guess.touches):
         if c >= len(problem.cones):
             raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(problem.cones)} cone(s)")
-    bvp = TouchBVP(problem)
-    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
-    tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
+    bvp = _touch_bvp(problem)
+    tp, z, T0, tc, nu = _touch_unknowns(bvp, guess)
     tau = bvp.tau
-    z, T0, nz = guess.to_nondim(bvp, with_norm=True)
-    tc = [t / tau for _, t, _ in guess.touches]
-    nu = [m / (tau * nz) for _, _, m in guess.touches]
     x0 = np.concatenate([z, [T0], tc, nu])
     ok, nit, nfev, rn = False, 0, 0, math.inf
     starts = [x0]
@@ -583,6 +579,23 @@ def solve_touch_guess(problem, guess, *, reference=None, tols=None, time_budget=
     return sol
 
 
+def _touch_bvp(problem):
+    """The touch-point BVP of ``problem``, its sensor axis unit."""
+    bvp = TouchBVP(problem)
+    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    return bvp
+
+
+def _touch_unknowns(bvp, guess):
+    """``(tp, z, T, tc, nu)``: the touch problem on ``guess``'s cones and the guess's unknowns,
+    nondimensional (the touch instants over ``tau``, the multipliers in the scale of ``z``)."""
+    tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
+    z, T0, nz = guess.to_nondim(bvp, with_norm=True)
+    tc = np.array([t / bvp.tau for _, t, _ in guess.touches])
+    nu = np.array([m / (bvp.tau * nz) for _, _, m in guess.touches])
+    return tp, z, T0, tc, nu
+
+
 def starting_residuals(problem, guesses, deadline=math.inf) -> list:
     """For each guess, the switch-time residual (max norm) as given, with its own structure,
     touches and multipliers: the first thing ``solve_touch_guess`` evaluates, here without the
@@ -594,8 +607,7 @@ def starting_residuals(problem, guesses, deadline=math.inf) -> list:
     out = [math.inf] * len(guesses)
     if not math.isinf(problem.torque_norm) or problem.sensor_axis is None or not problem.cones:
         return out
-    bvp = TouchBVP(problem)
-    bvp.sensor = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    bvp = _touch_bvp(problem)
     if LEARNED_COARSE_RTOL is not None and LEARNED_COARSE_RTOL > bvp.rtol:
         bvp.rtol, bvp.atol = LEARNED_COARSE_RTOL, LEARNED_COARSE_RTOL * bvp.atol / bvp.rtol
     for k, guess in enumerate(guesses):
@@ -605,10 +617,7 @@ def starting_residuals(problem, guesses, deadline=math.inf) -> list:
         if st is None or any(c >= len(problem.cones) for c, _, _ in guess.touches):
             continue
         try:
-            tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
-            z, T0, nz = guess.to_nondim(bvp, with_norm=True)
-            tc = np.array([t / bvp.tau for _, t, _ in guess.touches])
-            nu = np.array([m / (bvp.tau * nz) for _, _, m in guess.touches])
+            tp, z, T0, tc, nu = _touch_unknowns(bvp, guess)
             r = _structured_residual(tp, z, np.asarray(st.times, float), T0, tc, nu, st, False)[0]
         except (ValueError, TypeError, IndexError, ArithmeticError):
             continue    # a guess the touch solver cannot use: it says why when the route reaches it

@@ -9,7 +9,7 @@ import pytest
 
 import solvers.cone_touch as ct
 from solvers import api, solve
-from solvers.cone_touch import TouchBVP, TouchProblem, _structure_of, solve_touch_guess, starting_residuals
+from solvers.cone_touch import _structure_of, solve_touch_guess, starting_residuals
 from solvers.guesses import Guess
 
 from reference_cases import TOUCH
@@ -24,12 +24,8 @@ def touch_answer():
 
 
 def _newton_parts(guess):
-    bvp = TouchBVP(TOUCH)
-    bvp.sensor = np.asarray(TOUCH.sensor_axis, float) / np.linalg.norm(TOUCH.sensor_axis)
-    tp = TouchProblem(bvp, [c for c, _, _ in guess.touches])
-    z, T0, nz = guess.to_nondim(bvp, with_norm=True)
-    tc = [t / bvp.tau for _, t, _ in guess.touches]
-    nu = [m / (bvp.tau * nz) for _, _, m in guess.touches]
+    bvp = ct._touch_bvp(TOUCH)
+    tp, z, T0, tc, nu = ct._touch_unknowns(bvp, guess)
     return bvp, tp, z, _structure_of(guess, bvp.tau), T0, tc, nu
 
 
