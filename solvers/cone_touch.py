@@ -603,7 +603,7 @@ def starting_residuals(problem, guesses, deadline=math.inf) -> list:
     structure, names a cone the problem does not have, or its flow fails, and for all of them
     where the bound is not per-axis, and for those not reached by ``deadline``
     (``time.perf_counter()``). A learned route's candidates are tried in order of it
-    (``solvers.api._solve_learned_cones``)."""
+    (``solvers.cone_routes.solve_learned_cones``)."""
     out = [math.inf] * len(guesses)
     if not math.isinf(problem.torque_norm) or problem.sensor_axis is None or not problem.cones:
         return out

@@ -38,6 +38,17 @@ N_GRID_PNORM_GYRO = 4000
 N_DENSE = 400
 
 
+def eigenaxis_inapplicable(prob):
+    """Why the eigenaxis slew is not an answer to ``prob`` (it needs a rest-to-rest
+    full-attitude problem without cones), or ``None``: where ``solve``'s eigenaxis fallback does
+    not apply, and where ``auto`` does not compare its answer with it (``warm_routes.no_slower_than_eigenaxis``)."""
+    if prob.cones:
+        return "keep-out cones"
+    if prob.qf is None:
+        return "a pointing target"
+    return None if prob.is_rest_to_rest else "non-zero rates"
+
+
 def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     """The fastest eigenaxis slew of a rest-to-rest full-attitude ``problem`` without cones
     (module docstring); ``ValueError`` for other problems. ``n_grid``: angle steps of the

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from solvers import solve
+from solvers import solve, auto_route
 from solvers.warmstart import (DEFAULT_TABLE_FILE, ModelFileError, NearestNeighbourModel, WarmStartModel,
                                default_model, default_warm_start, load_model)
 from solvers.warmstart.attitude_ensemble import AttitudeEnsembleWarmStart
@@ -329,11 +329,10 @@ def test_a_half_turn_check_that_confirms_the_learned_answer_leaves_a_trace(tmp_p
 
 
 def test_a_challenger_that_raises_leaves_the_verified_answer(monkeypatch):
-    import solvers.api as api
 
     def broken(*a, **k):
         raise RuntimeError("collocation broke")
-    monkeypatch.setattr(api, "_solve_auto", broken)
+    monkeypatch.setattr(auto_route, "solve_auto", broken)
     s = solve(_held_out(623), warm_budget=5.0)
     rec = s.warm_start["local_optimum_check"]
     assert s.success and s.guess == "nearest-neighbour[0]" and "collocation broke" in rec["error"]

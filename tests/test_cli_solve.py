@@ -193,7 +193,7 @@ def test_batch_records_a_solver_crash_and_goes_on(tmp_path, monkeypatch):
 
 def test_cli_method_choices_match_the_solver():
     import solvers
-    from solvers.api import CONE_CHALLENGE_MODES
+    from solvers.cone_routes import CONE_CHALLENGE_MODES
     from training.cli_solve import CONE_CHALLENGE_CHOICES, METHOD_CHOICES
     assert tuple(METHOD_CHOICES) == tuple(solvers.METHODS)
     assert tuple(CONE_CHALLENGE_CHOICES) == tuple(CONE_CHALLENGE_MODES)

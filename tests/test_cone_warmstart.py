@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qmul
-from solvers import Guess, solve
+from solvers import Guess, solve, cone_routes, multistart
 from solvers.warmstart import ModelFileError, WarmStartModel, load_model
 from solvers.warmstart.cone_features import (N_CONE_FEATURES, cone_canonical_form, costate_from_canonical,
                                              costate_to_canonical)
@@ -341,14 +341,13 @@ def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):
     assert len(made) == 4 and len(calls) == 1         # the network once, for its two parts
     assert sources[:4] == [f"nearest-neighbour[{k}]" for k in range(4)]
     # the first two (collocation's starts under auto) make no others
-    from solvers import api
     made.clear(), calls.clear()
     monkeypatch.setattr(type(m), "covers", lambda self, p: None)
-    assert len(api._cone_neighbour_starts(TOUCH)) == 2 and len(made) == 2 and not calls
+    assert len(cone_routes.cone_neighbour_starts(TOUCH)) == 2 and len(made) == 2 and not calls
 
 
 def test_a_deferred_candidate_that_fails_is_skipped(monkeypatch):
-    import solvers.api as api
+    from solvers.solution import STATUS_NOT_CONVERGED, SlewSolution
     from solvers.warmstart import default_cone_model
     m = default_cone_model()
 
@@ -360,18 +359,18 @@ def test_a_deferred_candidate_that_fails_is_skipped(monkeypatch):
     # the neighbours fail (a budget too short to converge) and the network's parts cannot be made:
     # the route says so instead of raising
     import solvers.cone_touch as ct
-    monkeypatch.setattr(ct, "solve_touch_guess", lambda prob, cand, **kw: api.SlewSolution(
-        False, api.STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
+    monkeypatch.setattr(ct, "solve_touch_guess", lambda prob, cand, **kw: SlewSolution(
+        False, STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
     skipped = []
-    sol = api._solve_learned_cones(TOUCH, g, {}, budget=5.0, errors=skipped)
+    sol = cone_routes.solve_learned_cones(TOUCH, g, {}, budget=5.0, errors=skipped)
     assert not sol.success and sol.n_candidates == 4     # the 4 neighbours; the network skipped
     assert len(skipped) == 1 and "FloatingPointError: the network broke" in skipped[0]   # recorded once
     # solve records it in warm_start (as it did when the whole guess was made up front)
-    monkeypatch.setattr(api, "_guess_alone", lambda prob, cand, *a, **k: api.SlewSolution(
-        False, api.STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
+    monkeypatch.setattr(multistart, "guess_alone", lambda prob, cand, *a, **k: SlewSolution(
+        False, STATUS_NOT_CONVERGED, "no", 1, 1, 0.0, method="indirect", problem=prob))
     info = solve(TOUCH, warm_start=m, time_budget=30.0).warm_start
     assert info["covered"] and not info["succeeded"] and "the network broke" in info["error"]
-    sol = api._solve_learned_cones(TOUCH, api.Guess(g.costate0, g.tf, source="x", candidates=[broken]), {}, 5.0)
+    sol = cone_routes.solve_learned_cones(TOUCH, Guess(g.costate0, g.tf, source="x", candidates=[broken]), {}, 5.0)
     assert sol.n_candidates == 1
 
 
@@ -405,9 +404,8 @@ def test_a_guess_with_deferred_candidates_pickles_as_what_they_make(monkeypatch)
 
 @pytest.mark.parametrize("j", [1, 2])
 def test_a_tabled_problem_converges_from_its_own_solution(j, monkeypatch):
-    import solvers.api as api
-    monkeypatch.setattr(api, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
-    monkeypatch.setattr(api, "CONE_WARM_BUDGET", 5.0)
+    monkeypatch.setattr(cone_routes, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
+    monkeypatch.setattr(cone_routes, "CONE_WARM_BUDGET", 5.0)
     # the table's problem j, rebuilt from its canonical features (τ = 1): its own stored
     # solution is the first candidate and converges to it (record 1 touches a cone, 2 does not)
     from solvers.warmstart import default_cone_model
@@ -443,9 +441,8 @@ CHALLENGED = {"inertia": [0.8183035182128034, 0.48362743565964716, 0.61519373767
 
 
 def test_auto_takes_the_warm_starts_faster_extremal(monkeypatch):
-    import solvers.api as api
-    monkeypatch.setattr(api, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
-    monkeypatch.setattr(api, "CONE_WARM_BUDGET", 5.0)
+    monkeypatch.setattr(cone_routes, "CONE_CANDIDATE_CAP", 2.0)      # no time caps on a loaded machine
+    monkeypatch.setattr(cone_routes, "CONE_WARM_BUDGET", 5.0)
     alone = solve(CHALLENGED, warm_start=None)
     assert alone.success
     sol = solve(CHALLENGED)
@@ -461,38 +458,36 @@ def test_auto_takes_the_warm_starts_faster_extremal(monkeypatch):
 
 
 def test_a_failing_challenger_leaves_the_verified_answer(monkeypatch):
-    import solvers.api as api
 
     def broken(*a, **k):
         raise RuntimeError("model bug (test)")
-    monkeypatch.setattr(api, "_solve_learned_cones", broken)
+    monkeypatch.setattr(cone_routes, "solve_learned_cones", broken)
     sol = solve(TOUCH, cone_challenge="always")
     assert sol.success and sol.warm_start["role"] == "challenger" and sol.warm_start["challenged"]
     assert sol.warm_start["won"] is False and "model bug (test)" in sol.warm_start["error"]
 
 
 def test_the_cone_challenge_is_gated_by_the_networks_predicted_time(monkeypatch):
-    import solvers.api as api
     from solvers.warmstart import default_cone_model
-    predicted = api._network_predicted_tf(default_cone_model(), TOUCH)
+    predicted = cone_routes.network_predicted_tf(default_cone_model(), TOUCH)
     assert predicted == pytest.approx(default_cone_model().network.guess(TOUCH).tf, rel=1e-12)
     calls = []
-    orig = api._solve_learned_cones
-    monkeypatch.setattr(api, "_solve_learned_cones", lambda *a, **k: calls.append(1) or orig(*a, **k))
+    orig = cone_routes.solve_learned_cones
+    monkeypatch.setattr(cone_routes, "solve_learned_cones", lambda *a, **k: calls.append(1) or orig(*a, **k))
     # the gate at 10 x the prediction: no answer is above it, the challenge does not run
-    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 10.0)
+    monkeypatch.setattr(cone_routes, "CONE_CHALLENGE_GATE", 10.0)
     skipped = solve(TOUCH)
     assert skipped.success and not calls
     ws = skipped.warm_start
     assert ws["role"] == "challenger" and ws["challenged"] is False and ws["won"] is False
     assert ws["predicted_tf"] == pytest.approx(predicted, rel=1e-12) and "not above" in ws["reason"]
     # at 0.1 x, every answer is above it: the challenge runs
-    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 0.1)
+    monkeypatch.setattr(cone_routes, "CONE_CHALLENGE_GATE", 0.1)
     ran = solve(TOUCH)
     assert len(calls) == 1 and ran.warm_start["challenged"] is True
     assert ran.tf <= skipped.tf * (1 + 1e-9)
     # "always" ignores the gate; "never" runs no challenge and records none
-    monkeypatch.setattr(api, "CONE_CHALLENGE_GATE", 10.0)
+    monkeypatch.setattr(cone_routes, "CONE_CHALLENGE_GATE", 10.0)
     solve(TOUCH, cone_challenge="always")
     assert len(calls) == 2
     never = solve(TOUCH, cone_challenge="never")

@@ -7,8 +7,8 @@ import math
 import pytest
 
 from slew_env import SlewProblem
-from solvers import solve
-from solvers.api import _rel_tol
+from solvers import solve, cone_routes
+from solvers.cone_routes import rel_tol
 from solvers.collocation import settle_tf_tol, solve_collocation
 from reference_cases import TOUCH
 
@@ -75,8 +75,7 @@ def test_auto_settles_the_collocation_answer_it_returns(monkeypatch):
     assert sol.success and not sol.exact and sol.method == "switch-time"
     assert "against collocation's" in sol.message and "± nan" not in sol.message
     # ... and where there is none, the collocation answer itself is settled
-    import solvers.api as api
-    monkeypatch.setattr(api, "_bang_bang_cones", lambda *a, **k: None)
+    monkeypatch.setattr(cone_routes, "bang_bang_cones", lambda *a, **k: None)
     sol = solve(SINGULAR)
     assert sol.success and not sol.exact and sol.method == "collocation"
     assert sol._tf_tol_pending is None
@@ -91,11 +90,11 @@ def test_auto_touch_extremal_unchanged():
 
 def test_relative_tolerance_floor():
     now = type("A", (), {"tf": 2.0, "tf_tol": 1e-2})()
-    assert _rel_tol(now) == pytest.approx(5e-3)
+    assert rel_tol(now) == pytest.approx(5e-3)
     now.tf_tol = 1e-6
-    assert _rel_tol(now) == 1e-3
+    assert rel_tol(now) == 1e-3
     now.tf_tol = math.nan
-    assert _rel_tol(now) == 1e-3
+    assert rel_tol(now) == 1e-3
 
 
 def test_a_comparison_that_gives_nothing_in_time_is_said_too():

@@ -8,7 +8,7 @@ import pytest
 
 import solvers
 from slew_env import SlewProblem
-from solvers import Guess
+from solvers import Guess, multistart
 from solvers.eigenaxis_answer import eigenaxis_answer
 from training.cli import main
 
@@ -94,7 +94,6 @@ def test_cli_time_budget_and_fallback(tmp_path, capsys):
 ])
 def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, budget, torque_norm, inertia,
                                                                   kept, n_grid):
-    from solvers import api
     from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
     seen = {}
 
@@ -103,7 +102,7 @@ def test_the_fallback_planning_time_comes_out_of_the_routes_budget(monkeypatch, 
         return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
                             method="indirect", problem=prob, route="stub")
 
-    monkeypatch.setattr(api, "_solve_indirect", route)
+    monkeypatch.setattr(multistart, "solve_indirect", route)
     prob = _r3().replace(inertia=inertia, torque_norm=torque_norm)
     sol = solvers.solve(prob, method="indirect", warm_start=None, time_budget=budget, fallback="eigenaxis")
     assert seen["time_budget"] == pytest.approx(budget - kept, rel=1e-12)
@@ -136,7 +135,7 @@ def test_a_short_budget_gets_a_coarser_fallback_that_fits(monkeypatch, torque_no
         return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
                             method="indirect", problem=prob, route="stub")
 
-    monkeypatch.setattr(api, "_solve_indirect", route)
+    monkeypatch.setattr(multistart, "solve_indirect", route)
     prob = _r3().replace(inertia=inertia, torque_norm=torque_norm)
     sol = solvers.solve(prob, method="indirect", warm_start=None, time_budget=0.01, fallback="eigenaxis")
     assert sol.success and sol.method == "eigenaxis"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import solvers.cone_touch as ct
-from solvers import api, solve
+from solvers import solve, cone_routes
 from solvers.cone_touch import _structure_of, solve_touch_guess, starting_residuals
 from solvers.guesses import Guess
 
@@ -109,11 +109,11 @@ def test_starting_residuals_rank_the_candidates_with_touches(touch_answer):
     assert r[1] < 1e-9 < r[0] < math.inf and r[2] == math.inf
     # the rough one first in the model's order: the exact one takes its place; the one without
     # touches keeps its own
-    order = api._ranked_by_starting_residual(TOUCH, [rough, no_touch, exact])
+    order = cone_routes.ranked_by_starting_residual(TOUCH, [rough, no_touch, exact])
     assert [c.source for c in order] == ["exact", "no-touch", "rough"]
     # ties (and guesses that cannot be evaluated) keep their order
     wrong = Guess(touch_answer.costate0, touch_answer.tf, source="no-structure", touches=exact.touches)
-    order = api._ranked_by_starting_residual(TOUCH, [wrong, rough, exact])
+    order = cone_routes.ranked_by_starting_residual(TOUCH, [wrong, rough, exact])
     assert [c.source for c in order] == ["exact", "rough", "no-structure"]
 
 
@@ -122,7 +122,7 @@ def test_a_problem_without_a_per_axis_bound_keeps_the_models_order(touch_answer)
     rough = rough_answer_guess(touch_answer, 20.0, 0.05, 0.05, 1.5, seed=2, source="rough")
     p2 = TOUCH.replace(torque_norm=2.0)
     assert starting_residuals(p2, [rough, exact]) == [math.inf, math.inf]
-    assert [c.source for c in api._ranked_by_starting_residual(p2, [rough, exact])] == ["rough", "exact"]
+    assert [c.source for c in cone_routes.ranked_by_starting_residual(p2, [rough, exact])] == ["rough", "exact"]
 
 
 def test_the_learned_cone_route_tries_the_lowest_starting_residual_first(touch_answer, monkeypatch):
@@ -133,7 +133,7 @@ def test_the_learned_cone_route_tries_the_lowest_starting_residual_first(touch_a
     tried = []
     real = ct.solve_touch_guess
     monkeypatch.setattr(ct, "solve_touch_guess", lambda p, c, **k: tried.append(c.source) or real(p, c, **k))
-    out = api._solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
+    out = cone_routes.solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
     assert out.success and tried == ["exact"] and out.n_candidates == 1
     # a model that does not opt in (RANKS_CANDIDATES) keeps its order, and its deferred
     # candidates are made only when reached
@@ -141,12 +141,12 @@ def test_the_learned_cone_route_tries_the_lowest_starting_residual_first(touch_a
     made = []
     g2 = Guess(rough.costate0, rough.tf, rough.switch_times, rough.u_first, source="rough", touches=rough.touches,
                candidates=[lambda: made.append(1) or exact])
-    api._solve_learned_cones(TOUCH, g2, {}, 1.0)
+    cone_routes.solve_learned_cones(TOUCH, g2, {}, 1.0)
     assert tried[0] == "rough"
     # nor with the ranking switched off
-    monkeypatch.setattr(api, "CONE_RANK_CANDIDATES", False)
+    monkeypatch.setattr(cone_routes, "CONE_RANK_CANDIDATES", False)
     tried.clear()
-    api._solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
+    cone_routes.solve_learned_cones(TOUCH, g, {}, 1.0, rank=True)
     assert tried[0] == "rough"
 
 
@@ -155,7 +155,7 @@ def test_the_ranking_keeps_to_its_share_of_the_budget(touch_answer):
     rough = rough_answer_guess(touch_answer, 20.0, 0.05, 0.05, 1.5, seed=2, source="rough")
     assert starting_residuals(TOUCH, [rough, exact], deadline=0.0) == [math.inf, math.inf]
     # past its deadline the candidates keep the model's order
-    assert [c.source for c in api._ranked_by_starting_residual(TOUCH, [rough, exact], deadline=0.0)] == \
+    assert [c.source for c in cone_routes.ranked_by_starting_residual(TOUCH, [rough, exact], deadline=0.0)] == \
         ["rough", "exact"]
 
 

@@ -4,8 +4,8 @@ times optimised, lead the exact solver to the extremal without collocation."""
 import numpy as np
 import pytest
 
-from solvers import solve
-from solvers.api import _faster_verified, _neighbour_sequences_route, _table_votes_bang_bang
+from solvers import solve, multistart
+from solvers.warm_routes import faster_verified, neighbour_sequences_route, table_votes_bang_bang
 
 from test_switch_time_opt import _replay
 
@@ -29,7 +29,7 @@ def test_the_neighbours_sequences_lead_to_the_exact_extremal(p575):
     p, ref = p575
     s = solve(p)
     assert s.warm_start["succeeded"] is False           # the learned candidates did fail
-    assert _table_votes_bang_bang(s.warm_start) and s.warm_start["singular_table"]["used"] is False
+    assert table_votes_bang_bang(s.warm_start) and s.warm_start["singular_table"]["used"] is False
     rec = s.warm_start["neighbour_sequences"]
     assert rec["used"] and rec["exact"] and 1 <= rec["tried"] <= 8
     assert s.success and s.exact and s.method == "indirect"
@@ -48,7 +48,7 @@ def test_a_neighbours_bang_bang_answer_must_beat_the_collocation_route():
     # extremal and 1.6e-4 slower than the extremal the collocation route refines
     p = _held_out(828)
     info = {}
-    bang, _ = _neighbour_sequences_route(p, {}, info)
+    bang, _ = neighbour_sequences_route(p, {}, info)
     assert bang is not None and bang.success and bang.method == "switch-time" and not bang.exact
     assert info["neighbour_sequences"]["used"] and info["neighbour_sequences"]["exact"] is False
     assert max(_replay(p, bang.switch_times, bang.u_first, bang.tf)) < 1e-8
@@ -61,28 +61,28 @@ def test_a_neighbours_bang_bang_answer_must_beat_the_collocation_route():
 def test_the_faster_verified_answer_is_kept_and_the_work_counted(p575):
     p, ref = p575
     info = {}
-    ex, _ = _neighbour_sequences_route(p, {}, info)
+    ex, _ = neighbour_sequences_route(p, {}, info)
     assert ex.exact and ex.tf == pytest.approx(ref.tf, rel=1e-9)
 
     class Slower:   # a verified answer of the other route, slower
         success, tf, method, nit, nfev, message, exact = True, ref.tf * 1.01, "collocation", 7, 9, "", False
 
     nit = ex.nit
-    kept = _faster_verified(Slower(), ex)
+    kept = faster_verified(Slower(), ex)
     assert kept is ex and kept.nit == nit + 7 and "faster than the collocation route's" in kept.route
     other = Slower()
     other.tf = ref.tf            # a tie keeps the route's answer
-    assert _faster_verified(other, ex) is other
+    assert faster_verified(other, ex) is other
 
     class Exact(Slower):   # a certified extremal within 1e-6 of a bang-bang slew keeps its place
         tf, method, exact = ref.tf * (1 + 5e-7), "indirect", True
 
-    assert isinstance(_faster_verified(Exact(), ex), Exact)
+    assert isinstance(faster_verified(Exact(), ex), Exact)
 
     class Failed:
         success, tf, method, nit, nfev, message, exact = False, float("nan"), "indirect", 1, 1, "no candidate converged", False
 
-    assert _faster_verified(Failed(), ex) is ex and "no verified answer" in ex.route
+    assert faster_verified(Failed(), ex) is ex and "no verified answer" in ex.route
 
 
 def test_evaluate_counts_the_neighbours_extremal_as_exact():
@@ -107,18 +107,17 @@ def test_evaluate_counts_the_neighbours_extremal_as_exact():
 
 
 def test_the_vote_reader():
-    assert not _table_votes_bang_bang({})
-    assert not _table_votes_bang_bang({"singular_table": {"error": "damaged"}})
-    assert _table_votes_bang_bang({"singular_table": {"share": 0.0, "vote": 0.6}})
-    assert not _table_votes_bang_bang({"singular_table": {"share": 0.2, "vote": 0.6}})
-    assert not _table_votes_bang_bang({"singular_table": {"share": 0.8, "vote": 0.6}})
+    assert not table_votes_bang_bang({})
+    assert not table_votes_bang_bang({"singular_table": {"error": "damaged"}})
+    assert table_votes_bang_bang({"singular_table": {"share": 0.0, "vote": 0.6}})
+    assert not table_votes_bang_bang({"singular_table": {"share": 0.2, "vote": 0.6}})
+    assert not table_votes_bang_bang({"singular_table": {"share": 0.8, "vote": 0.6}})
 
 
 def test_an_extremal_slower_than_an_earlier_sequences_slew_does_not_win(monkeypatch, p575):
     # the first sequence gives a verified bang-bang slew (no extremal from it), the second a
     # slower slew whose extremal is still slower than the first slew: the first slew is the
     # answer (for solve() to compare with the collocation route), not that extremal
-    import solvers.api as api
     import solvers.switch_time_opt as sto
     p, ref = p575
 
@@ -139,9 +138,9 @@ def test_an_extremal_slower_than_an_earlier_sequences_slew_does_not_win(monkeypa
         calls.append(bang.tf)
         return None if len(calls) == 1 else Fake(ref.tf * 1.04, True)
 
-    monkeypatch.setattr(api, "_exact_from_kkt", exact_from_kkt)
+    monkeypatch.setattr(multistart, "exact_from_kkt", exact_from_kkt)
     info = {}
-    ans, _ = _neighbour_sequences_route(p, {}, info)
+    ans, _ = neighbour_sequences_route(p, {}, info)
     assert len(calls) >= 2 and ans.tf == ref.tf and not ans.exact
     assert info["neighbour_sequences"]["exact"] is False
 
@@ -149,7 +148,6 @@ def test_an_extremal_slower_than_an_earlier_sequences_slew_does_not_win(monkeypa
 def test_a_bang_bang_answer_no_faster_than_the_eigenaxis_slew_is_rejected(monkeypatch, p575):
     # every sequence gives a verified bang-bang slew, none an extremal, and the fastest is slower
     # than the eigenaxis slew: the route gives nothing (the collocation route answers), and says why
-    import solvers.api as api
     import solvers.switch_time_opt as sto
     p, ref = p575
     assert ref.tf < ref.baseline_tf
@@ -163,9 +161,9 @@ def test_a_bang_bang_answer_no_faster_than_the_eigenaxis_slew_is_rejected(monkey
 
     monkeypatch.setattr(sto, "bang_bang_from_sequences",
                         lambda *a, **k: (Fake(ref.baseline_tf * 1.01), object(), (2, 3)))
-    monkeypatch.setattr(api, "_exact_from_kkt", lambda *a, **k: None)
+    monkeypatch.setattr(multistart, "exact_from_kkt", lambda *a, **k: None)
     info = {}
-    ans, (nit, nfev) = _neighbour_sequences_route(p, {}, info)
+    ans, (nit, nfev) = neighbour_sequences_route(p, {}, info)
     rec = info["neighbour_sequences"]
     assert ans is None and rec["rejected"] == "not faster than the eigenaxis slew"
     assert rec["tried"] >= 1 and nit == 2 * rec["tried"] and nfev == 3 * rec["tried"]
@@ -173,6 +171,6 @@ def test_a_bang_bang_answer_no_faster_than_the_eigenaxis_slew_is_rejected(monkey
     monkeypatch.setattr(sto, "bang_bang_from_sequences",
                         lambda *a, **k: (Fake(ref.tf * 1.001), object(), (2, 3)))
     info = {}
-    ans, _ = _neighbour_sequences_route(p, {}, info)
+    ans, _ = neighbour_sequences_route(p, {}, info)
     assert ans is not None and ans.tf == ref.tf * 1.001 and "rejected" not in info["neighbour_sequences"]
     assert ans.verification["eigenaxis_baseline"]["passed"] and ans.baseline_tf > ans.tf

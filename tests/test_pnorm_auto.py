@@ -3,10 +3,9 @@ if it fails; p > 2, pointing targets, rate limits and cones keep collocation fir
 import numpy as np
 import pytest
 
-import solvers.api as api
 from slew_env import SlewProblem
 from slew_env.core import qfrom_uniform
-from solvers import solve
+from solvers import solve, auto_route, multistart
 from solvers.collocation import solve_collocation
 
 
@@ -30,25 +29,25 @@ def test_auto_answers_a_p_norm_slew_by_the_indirect_route_first(p_norm):
 
 
 def test_other_problems_keep_collocation_first():
-    assert api._pnorm_indirect_first(_problem(2.0))
-    assert not api._pnorm_indirect_first(_problem(3.0))
-    assert not api._pnorm_indirect_first(_problem(np.inf))
-    assert not api._pnorm_indirect_first(_problem(2.0, rate_max=[0.5, 0.5, 0.5]))
-    assert not api._pnorm_indirect_first(_problem(2.0).replace(omega0=[0.01, 0.0, 0.0]))
+    assert auto_route.pnorm_indirect_first(_problem(2.0))
+    assert not auto_route.pnorm_indirect_first(_problem(3.0))
+    assert not auto_route.pnorm_indirect_first(_problem(np.inf))
+    assert not auto_route.pnorm_indirect_first(_problem(2.0, rate_max=[0.5, 0.5, 0.5]))
+    assert not auto_route.pnorm_indirect_first(_problem(2.0).replace(omega0=[0.01, 0.0, 0.0]))
     # outside the measured inertia ratios (a review found 17.6 % and 66 % slower local optima at
     # ratios down to 0.05)
-    assert not api._pnorm_indirect_first(_problem(2.0).replace(inertia=[0.1, 0.6, 1.0]))
-    assert api._pnorm_indirect_first(_problem(2.0).replace(inertia=[0.3, 0.6, 1.0]))
+    assert not auto_route.pnorm_indirect_first(_problem(2.0).replace(inertia=[0.1, 0.6, 1.0]))
+    assert auto_route.pnorm_indirect_first(_problem(2.0).replace(inertia=[0.3, 0.6, 1.0]))
     pointing = SlewProblem([1.0, 0.8, 0.6], torque_norm=2.0, q0=[1.0, 0.0, 0.0, 0.0], qf=None,
                            sensor_axis=[0.0, 0.0, 1.0], sensor_target=[1.0, 0.0, 0.0])
-    assert not api._pnorm_indirect_first(pointing)
+    assert not auto_route.pnorm_indirect_first(pointing)
     s = solve(_problem(3.0))
     assert s.success and "indirect first" not in s.route and "collocation" in s.route
 
 
 def test_when_the_indirect_route_fails_collocation_answers_and_says_why(monkeypatch):
     p = _problem(2.0)
-    real = api._solve_indirect
+    real = multistart.solve_indirect
     calls = []
 
     def failing_first(prob, method, guess, *a, **kw):
@@ -59,7 +58,7 @@ def test_when_the_indirect_route_fails_collocation_answers_and_says_why(monkeypa
             return out
         return real(prob, method, guess, *a, **kw)
 
-    monkeypatch.setattr(api, "_solve_indirect", failing_first)
+    monkeypatch.setattr(multistart, "solve_indirect", failing_first)
     s = solve(p)
     assert s.success and calls[0] is None
     assert "indirect first" in s.route and "failed" in s.route and "collocation" in s.route

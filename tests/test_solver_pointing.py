@@ -8,7 +8,7 @@ import pytest
 from slew_env import SlewProblem
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qconj, qmul, qrotate
-from solvers import solve
+from solvers import solve, auto_route
 from solvers.attitude_bvp import AttitudeBVP
 
 TARGET = np.array([0.2, -0.6, 0.77])
@@ -117,11 +117,10 @@ def test_inactive_cones_over_a_singular_arc_skip_the_exact_refinement(monkeypatc
     cones). No bang-bang extremal is near: auto skips the refinement's 2 s and returns the
     bang-bang slew with collocation's sequence and optimised switch times (before
     ``switch_time_cones``, the collocation answer, 2.2213937)."""
-    import solvers.api as api
     from slew_env import TaskDistribution
     p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([5, 281]))
     calls = []
-    monkeypatch.setattr(api, "_refine_collocation", lambda *a, **k: calls.append(1) or (None, False))
+    monkeypatch.setattr(auto_route, "refine_collocation", lambda *a, **k: calls.append(1) or (None, False))
     s = solve(p, time_budget=120.0)     # (a fresh install compiles kernels in its first solves)
     assert s.success and s.method == "switch-time" and not s.exact
     assert "cones inactive" in s.route and "singular arc" in s.route and "no exact refinement" in s.route
@@ -137,9 +136,9 @@ def test_the_nearest_cone_solutions_join_collocations_starts():
     optimum whose touch extremal is 1.82834; with the 2 nearest tabled solutions among its starts,
     the extremal is 3.5 % faster (and neither is the challenger's)."""
     from slew_env import TaskDistribution
-    from solvers.api import CONE_NEIGHBOUR_STARTS, _cone_neighbour_starts
+    from solvers.cone_routes import CONE_NEIGHBOUR_STARTS, cone_neighbour_starts
     p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([0, 65]))
-    assert len(_cone_neighbour_starts(p)) == CONE_NEIGHBOUR_STARTS == 2
+    assert len(cone_neighbour_starts(p)) == CONE_NEIGHBOUR_STARTS == 2
     s = solve(p)
     assert s.success and s.exact and s.tf == pytest.approx(1.7650978, rel=1e-6)
     without = solve(p, collocation={"extra_starts": []})
@@ -193,7 +192,7 @@ POINTING_SINGULAR = {"inertia": [0.9681902246088698, 0.7205816372685396, 0.79865
 
 
 def test_auto_reads_a_pointing_slews_singular_arc_before_refining():
-    from solvers.api import _pointing_singular_check
+    from solvers.auto_route import _pointing_singular_check
     p = SlewProblem.from_dict(POINTING_SINGULAR)
     assert _pointing_singular_check(p)
     assert not _pointing_singular_check(p.replace(rate_max=2.0))       # coasts at a rate limit are interior too

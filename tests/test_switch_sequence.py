@@ -6,7 +6,7 @@ import pytest
 
 from slew_env import SlewProblem
 from slew_env.core import qfrom_uniform
-from solvers import Guess, solve
+from solvers import Guess, solve, multistart
 from solvers.attitude_bvp import NY, AttitudeBVP
 from solvers.core.attitude_flow import ext_rhs
 from solvers.switch_time import Structure, _residual, solve_switch_times
@@ -169,12 +169,12 @@ def test_the_compiled_sequence_end_matches_the_python_loop():
 
 
 def test_a_stalled_template_stops_early_and_a_converging_one_does_not():
-    """``stall=(10, 0.1)`` (``api.TEMPLATE_STALL``): a structure template whose residual is still
+    """``stall=(10, 0.1)`` (``multistart.TEMPLATE_STALL``): a structure template whose residual is still
     above 0.1 of its first after 10 iterations stops there, as failed, instead of running to the
     line search's failure or 30 iterations; the templates that converge converge as before."""
     import json
     from pathlib import Path
-    from solvers.api import TEMPLATE_STALL
+    from solvers.multistart import TEMPLATE_STALL
     from solvers.guesses import eigenaxis_guess, structure_templates
     r3 = Path(__file__).resolve().parent.parent / "examples" / "r3_seed_report_per_axis.json"
     p = SlewProblem.from_dict(json.loads(r3.read_text())).replace(inertia=[0.5, 0.8, 1.0])
@@ -198,18 +198,17 @@ def test_a_stalled_template_stops_early_and_a_converging_one_does_not():
 
 def test_the_classical_route_gives_the_stall_rule_to_templates_only(monkeypatch):
     import math
-    from solvers import api
     seen = []
-    real = api.solve_structure
+    real = multistart.solve_structure
 
     def spy(*a, **k):
         seen.append((k.get("route", ""), k.get("stall")))
         return real(*a, **k)
-    monkeypatch.setattr(api, "solve_structure", spy)
+    monkeypatch.setattr(multistart, "solve_structure", spy)
     p = SlewProblem([0.5, 0.8, 1.0], q0=[1, 0, 0, 0], qf=[math.cos(0.8), 0.0, math.sin(0.8), 0.0])
     solve(p, method="indirect", warm_start=None, time_budget=5.0)
     solve(p, method="indirect", time_budget=5.0)          # the learned guess's structures
     templates = [s for r, s in seen if "template" in r]
     others = [s for r, s in seen if "template" not in r]
-    assert templates and all(s == api.TEMPLATE_STALL for s in templates)
+    assert templates and all(s == multistart.TEMPLATE_STALL for s in templates)
     assert others and all(s is None for s in others)

@@ -11,7 +11,7 @@ import pytest
 
 import solvers
 from slew_env import SlewProblem
-from solvers import api
+from solvers import api, auto_route, cone_routes, multistart, stage_budget, warm_routes
 from solvers.collocation import solve_collocation
 from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_SUCCESS
 from reference_cases import TOUCH
@@ -81,14 +81,14 @@ def test_stages_get_what_is_left(monkeypatch):
     monkeypatch.setattr(solvers.collocation, "solve_collocation", spy)
     solvers.solve(TOUCH, warm_start=None, time_budget=0.3)
     assert budgets and budgets[0] <= 0.3
-    assert api._left(0.3, 0.5) == api.MIN_STAGE_BUDGET and api._left(1.0, 0.25) == 0.75
+    assert stage_budget.left(0.3, 0.5) == stage_budget.MIN_STAGE_BUDGET and stage_budget.left(1.0, 0.25) == 0.75
 
 
 def test_touch_refinement_stops_at_the_callers_deadline(touch_col):
-    sol = api._refine_touching_cones(TOUCH, touch_col, {}, budget=1e-9)
+    sol = cone_routes.refine_touching_cones(TOUCH, touch_col, {}, budget=1e-9)
     assert not sol.success
     assert "time budget ran out" in sol.message
-    full = api._refine_touching_cones(TOUCH, touch_col, {})
+    full = cone_routes.refine_touching_cones(TOUCH, touch_col, {})
     assert full.success and full.status == STATUS_SUCCESS
 
 
@@ -97,7 +97,7 @@ def test_auto_starts_no_multi_start_once_the_budget_is_spent(monkeypatch):
     runs) is not started past it."""
     solvers.solve(FULL, warm_start=None, method="collocation")     # the NLP templates, built
     called = []
-    monkeypatch.setattr(api, "_solve_indirect", lambda *a, **k: called.append(1))
+    monkeypatch.setattr(multistart, "solve_indirect", lambda *a, **k: called.append(1))
     sol = solvers.solve(FULL, warm_start=None, time_budget=1e-3)
     assert not called
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
@@ -114,13 +114,13 @@ def test_auto_runs_no_route_after_the_learned_stage_spent_the_budget(monkeypatch
         time.sleep(0.03)
         failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "candidates stopped", 1, 1, 0.03, problem=prob)
         return failed, {"covered": True, "succeeded": False}, None
-    monkeypatch.setattr(api, "_warm_start", slow_warm)
-    monkeypatch.setattr(api, "_singular_table_route", lambda *a, **k: (None, (0, 0)))
-    monkeypatch.setattr(api, "_table_votes_bang_bang", lambda info: False)
+    monkeypatch.setattr(warm_routes, "try_warm_start", slow_warm)
+    monkeypatch.setattr(warm_routes, "singular_table_route", lambda *a, **k: (None, (0, 0)))
+    monkeypatch.setattr(warm_routes, "table_votes_bang_bang", lambda info: False)
 
     def no_route(*a, **k):
         raise AssertionError("the route ran past the budget")
-    monkeypatch.setattr(api, "_solve_auto", no_route)
+    monkeypatch.setattr(auto_route, "solve_auto", no_route)
     sol = solvers.solve(FULL, time_budget=0.02)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert "no time left for the default route" in sol.route
@@ -129,7 +129,6 @@ def test_auto_runs_no_route_after_the_learned_stage_spent_the_budget(monkeypatch
 def test_auto_starts_no_collocation_once_the_indirect_stage_spent_the_budget(monkeypatch):
     """p-norm (p ≤ 2) auto: the indirect multi-start first; if it fails having used the budget,
     collocation (whose NLP build is not interruptible: 0.3-0.5 s the first time) is not started."""
-    from solvers import api
     from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
     prob = SlewProblem([0.5, 0.8, 1.0], torque_norm=2.0, q0=[1, 0, 0, 0], qf=[0.0, 1.0, 0.0, 0.0])
 
@@ -142,7 +141,7 @@ def test_auto_starts_no_collocation_once_the_indirect_stage_spent_the_budget(mon
         raise AssertionError("collocation started after the budget was spent")
 
     solvers.load_kernels(prob)      # (its representative solves must not meet the stubs)
-    monkeypatch.setattr(api, "_solve_indirect", slow_failure)
+    monkeypatch.setattr(multistart, "solve_indirect", slow_failure)
     monkeypatch.setattr("solvers.collocation.solve_collocation", no_collocation)
     sol = solvers.solve(prob, warm_start=None, time_budget=0.05)
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
@@ -158,12 +157,12 @@ def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
     def no_route(*a, **k):
         raise AssertionError("a route started after the budget was spent")
 
-    monkeypatch.setattr(api, "_solve_auto", no_route)
-    monkeypatch.setattr(api, "_solve_indirect", no_route)
+    monkeypatch.setattr(auto_route, "solve_auto", no_route)
+    monkeypatch.setattr(multistart, "solve_indirect", no_route)
     failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
                           method="collocation", problem=TOUCH, route="stub")
-    assert api._clear_without_cones(TOUCH, failed, {}, {}, 0.0) is None
-    assert api._clear_without_cones(TOUCH, failed, {}, {}, -0.01, exact_only=True) is None
+    assert cone_routes.clear_without_cones(TOUCH, failed, {}, {}, 0.0) is None
+    assert cone_routes.clear_without_cones(TOUCH, failed, {}, {}, -0.01, exact_only=True) is None
 
 
 def test_no_nlp_is_built_that_the_budget_cannot_pay_for():

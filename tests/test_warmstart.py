@@ -406,20 +406,20 @@ def test_auto_holds_a_costates_only_candidate_until_collocation_shows_no_singula
 
 
 def test_split_continuation_keeps_structured_and_deferred_candidates_first():
-    from solvers.api import _split_continuation
+    from solvers.warm_routes import split_continuation
     z = np.array([0, 1, 0, 0, 1, 1, 1.0])
     made = lambda: None  # noqa: E731
     g = Guess(z, 1.0, [[0.5], [], []], [1, 1, 1], source="a",
               candidates=[made, Guess(z, 1.1, source="c1"), Guess(z, 1.2, [[], [], []], [1, 1, 1], source="s"),
                           Guess(z, 1.3, source="c2")])
-    fast, later = _split_continuation(g)
+    fast, later = split_continuation(g)
     assert fast.source == "a" and [c if callable(c) else c.source for c in fast.candidates] == [made, "s"]
     assert [c.source for c in later.all()] == ["c1", "c2"]
     assert len(g.candidates) == 4          # the model's guess is not changed
     # nothing to hold back, or no structure of its own: not split
-    assert _split_continuation(fast) == (fast, None)
+    assert split_continuation(fast) == (fast, None)
     plain = Guess(z, 1.0, source="p", candidates=[Guess(z, 1.1, source="c")])
-    assert _split_continuation(plain) == (plain, None)
+    assert split_continuation(plain) == (plain, None)
 
 
 def test_compiled_single_row_inference_matches_the_numpy_batch_path():

@@ -43,7 +43,7 @@ import tempfile
 import time
 
 METHOD_CHOICES = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")  # == solvers.METHODS (tested; not imported: fast --help)
-CONE_CHALLENGE_CHOICES = ("gated", "always", "never")   # == solvers.api.CONE_CHALLENGE_MODES (tested; as above)
+CONE_CHALLENGE_CHOICES = ("gated", "always", "never")   # == solvers.cone_routes.CONE_CHALLENGE_MODES (tested; as above)
 BAD_LINE_STATUS = -1        # batch record of a line that does not validate (ValueError)
 INTERNAL_ERROR_STATUS = -2  # batch record of a line on which the solver raised anything else
 

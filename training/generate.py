@@ -143,7 +143,7 @@ def solve_warm(problem, model=None, fallback=False, **options):
     solve becomes a failure record (no classical route), so the data are biased towards
     problems the model already solves; mix with data from ``solve_default``."""
     import solvers
-    from solvers.api import _warm_start
+    from solvers.warm_routes import try_warm_start
     from slew_env import SlewProblem
     prob = SlewProblem.from_dict(problem)
     if fallback:
@@ -152,7 +152,7 @@ def solve_warm(problem, model=None, fallback=False, **options):
     from solvers.kernel_loading import ensure_kernels
     ensure_kernels(prob)              # as solvers.solve does before its clock (once a process)
     with single_threaded_blas():      # as inside solvers.solve
-        sol, info, _ = _warm_start(prob, "indirect", model or "default", options)
+        sol, info, _ = try_warm_start(prob, "indirect", model or "default", options)
     if sol is None and info.get("covered") is False:
         raise ValueError(f"warm start: the model does not cover this problem ({info.get('reason')})")
     if sol is None:

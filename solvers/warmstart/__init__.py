@@ -131,7 +131,7 @@ class _ConeModelOptIn:
     """What ``warm_start="default"`` gives a pointing problem with cones as a first guess: none,
     and the reason recorded in ``SlewSolution.warm_start`` (the shipped cone model is opt-in as
     a first guess; ``method="auto"`` uses it as a challenger after the default route instead,
-    ``solvers.api._cone_challenger``)."""
+    ``solvers.cone_routes.cone_challenger``)."""
     name = "shipped models"
     REASON = ("cones: the shipped pointing-cones warm start is opt-in as a first guess, warm_start='pointing-cones' "
               "(on held-out problems it converges on 58 %, and 43 % of those answers are slower local extremals "

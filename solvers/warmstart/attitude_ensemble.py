@@ -17,7 +17,7 @@ are, in order:
    problems with an exact extremal that 1 and 2 missed, 6 converge from neighbours ranked 4th
    to 8th, while a singular problem would only pay for them before the singular table's route;
 4. the network's costates alone (smoothing continuation, up to a second; ``solve`` with
-   ``method="auto"`` runs it only after collocation, ``api._split_continuation``).
+   ``method="auto"`` runs it only after collocation, ``solvers.warm_routes.split_continuation``).
 
 Files: the network ``full-attitude.npz`` and, next to it, the table ``full-attitude.nn.npz``
 (the network's own training solutions, written by ``slew train --export``:

@@ -10,7 +10,7 @@ costates (on 40 held-out problems with exact answers: with the true switching st
 touches, 34 of the network's costate guesses converge; with its own, 10). So the candidates are, in order: the solutions of the
 ``n_neighbours`` nearest problems of the table (``cone_nearest``, mapped to this problem's
 axes and cones), then the network's guess and its variants (``cone_model``). The solver tries
-them one by one, each under a short time cap (``solvers.api.CONE_CANDIDATE_CAP``), those with
+them one by one, each under a short time cap (``solvers.cone_routes.CONE_CANDIDATE_CAP``), those with
 touches in order of their starting residual (``RANKS_CANDIDATES``). Only the nearest solution's
 guess is made by ``guess``; the later candidates are deferred (``Guess.iter_all``: made when the
 solver reaches them, which the learned route's ranking does at its start; ``auto``'s collocation
@@ -35,7 +35,7 @@ class ConeEnsembleWarmStart:
     KIND = "pointing-cones-ensemble"
     # its candidates are cheap to make (table rows mapped to the problem, one network pass: 0.2 ms
     # for all of them), so the solver makes them all up front and tries those with touches in
-    # order of their starting residual (``solvers.api._ranked_by_starting_residual``)
+    # order of their starting residual (``solvers.cone_routes.ranked_by_starting_residual``)
     RANKS_CANDIDATES = True
 
     def __init__(self, network, table, n_neighbours=4):

@@ -291,7 +291,7 @@ class WarmStartModel:
         self.last_inference_s = time.perf_counter() - t0
         g = Guess(c0, tf, sw, uf, source="learned")
         # the network's estimate of the optimal final time (``solve`` with ``method="auto"``
-        # challenges an answer well above it, ``api._challenge_learned_answer``)
+        # challenges an answer well above it, ``solvers.warm_routes.challenge_learned_answer``)
         g.predicted_tf = float(tf)
         if propagate:
             # deferred: one propagation (~0.25 ms), paid only when the first candidate fails

@@ -14,7 +14,7 @@ verified extremal, the Newton iterations, the wall time and the final time:
   tabled problems are singular, the table's answer without the collocation check for an exact
   extremal that ``solve()`` adds there; where fewer than that are singular, the switching
   sequences of the nearest tabled solutions, optimised, then the exact solver from their KKT
-  costates (``solvers.api._neighbour_sequences_route``; ``solve()`` runs the collocation route
+  costates (``solvers.warm_routes.neighbour_sequences_route``; ``solve()`` runs the collocation route
   as well when that gives no extremal). (``solve()`` consults the table before the model's
   continuation candidate, so its times differ a little.);
 * ``nearest-neighbour`` — the solutions of the k nearest problems of the training data
@@ -84,7 +84,8 @@ def _run_one(args):
 
 def _run_guesses(family, seed, index, guesses, budget, warm_budget):
     from solvers import Guess
-    from solvers.api import _solve_indirect, _warm_start
+    from solvers.multistart import solve_indirect
+    from solvers.warm_routes import try_warm_start
     from solvers.warmstart.features import canonical_form, solution_from_canonical
     from training.generate import GenerationSpec, problem_for
     prob = problem_for(GenerationSpec(family, seed=seed), index)
@@ -97,7 +98,7 @@ def _run_guesses(family, seed, index, guesses, budget, warm_budget):
                 continue
             if name in ("learned", "nearest-neighbour"):
                 model = _W["model"] if name == "learned" else _W["nn"]
-                sol, info, _ = _warm_start(prob, "indirect", model, {"warm_budget": warm_budget})
+                sol, info, _ = try_warm_start(prob, "indirect", model, {"warm_budget": warm_budget})
                 if sol is None and info.get("covered") is False:
                     out.append({"index": index, "guess": name, "covered": False, "reason": info.get("reason")})
                     continue
@@ -107,14 +108,14 @@ def _run_guesses(family, seed, index, guesses, budget, warm_budget):
                                 "message": info.get("error", "no guess")[:200]})
                     continue
             elif name == "eigenaxis":
-                sol = _solve_indirect(prob, "indirect", None, max_candidates=1, min_candidates=1, time_budget=budget)
+                sol = solve_indirect(prob, "indirect", None, max_candidates=1, min_candidates=1, time_budget=budget)
             elif name == "random":
                 rng = np.random.default_rng([seed, index, 7])
                 cf = canonical_form(prob)
                 z = rng.normal(size=6)
                 z /= np.linalg.norm(z)
                 c0, tf, _, _ = solution_from_canonical(prob, cf, z, cf.T_eig * rng.uniform(0.7, 1.3))
-                sol = _solve_indirect(prob, "indirect", Guess(c0, tf, source="random"), max_candidates=1,
+                sol = solve_indirect(prob, "indirect", Guess(c0, tf, source="random"), max_candidates=1,
                                       min_candidates=1, time_budget=budget)
             elif name == "auto":
                 from solvers import solve
@@ -136,16 +137,16 @@ def _run_guesses(family, seed, index, guesses, budget, warm_budget):
 def _with_table(prob, out):
     """The ``learned+table`` record: the ``learned`` record of this problem (run just before)
     if it converged, else the singular table's route after it, its time added."""
-    from solvers.api import _neighbour_sequences_route, _singular_table_route, _table_votes_bang_bang
+    from solvers.warm_routes import neighbour_sequences_route, singular_table_route, table_votes_bang_bang
     learned = next(r for r in out if r["guess"] == "learned")
     rec = dict(learned, guess="learned+table")
     if not learned.get("covered") or learned.get("success"):
         return rec
     t0 = time.perf_counter()
     info = {}
-    sol, (nit, _) = _singular_table_route(prob, {}, info, exact_check=False)   # the table's answers: no collocation
-    if sol is None and _table_votes_bang_bang(info):
-        sol, (nit_nb, _) = _neighbour_sequences_route(prob, {}, info)   # the neighbours' sequences
+    sol, (nit, _) = singular_table_route(prob, {}, info, exact_check=False)   # the table's answers: no collocation
+    if sol is None and table_votes_bang_bang(info):
+        sol, (nit_nb, _) = neighbour_sequences_route(prob, {}, info)   # the neighbours' sequences
         nit += nit_nb
     rec["wall_time_s"] = learned["wall_time_s"] + time.perf_counter() - t0
     if sol is not None:
@@ -225,8 +226,9 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
              baseline_n=100, workers=None, budget=5.0, progress_bar=True, warm_budget=None) -> dict:
     """See the module docstring. ``budget``: seconds per classical guess (eigenaxis, random);
     ``warm_budget``: seconds for a model's candidates (default: ``solvers.solve``'s, 1 s, or
-    0.2 s for the pointing-cones family, each candidate capped at ``solvers.api.CONE_CANDIDATE_CAP``)."""
-    from solvers.api import CONE_WARM_BUDGET, WARM_BUDGET
+    0.2 s for the pointing-cones family, each candidate capped at ``solvers.cone_routes.CONE_CANDIDATE_CAP``)."""
+    from solvers.cone_routes import CONE_WARM_BUDGET
+    from solvers.warm_routes import WARM_BUDGET
     if warm_budget is None:
         warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
     warm_budget = float(warm_budget)

@@ -1,0 +1,376 @@
+"""``solve`` with keep-out cones: the learned cone route, the refinements of a collocation answer
+(inactive cones, touch points, the bang-bang switch-time answer), the indirect cone route with
+its penalty homotopy, and ``auto``'s pointing-cones challenger."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from typing import Optional
+
+from .solution import STATUS_NOT_CONVERGED, STATUS_VERIFICATION_FAILED, SlewSolution
+from .verify import make_check
+from . import auto_route, multistart, stage_budget, warm_routes
+
+# a cone model's candidate either converges in tens of milliseconds or not at all (90 % of the
+# converged ones within 60 ms): each gets a short cap, and all of them a budget that costs
+# little before the collocation route
+CONE_WARM_BUDGET = 0.2
+
+# auto's cone challenger (``cone_challenger``) runs where the route's answer is slower than this
+# multiple of the pointing-cones network's predicted tf ("gated", the default), always, or never.
+# On 600 problems (seeds 5, 6, 7; runs/s27/challenger_*.json) it won 3 times: 45 % faster (the
+# answer 1.77 x the prediction), 1.1 % (1.0087 x) and 3e-7 (0.988 x); the gate challenges 45 % of
+# the answers and keeps the first two
+CONE_CHALLENGE_GATE = 1.0
+CONE_CHALLENGE_MODES = ("gated", "always", "never")
+CONE_CANDIDATE_CAP = 0.06
+
+# a cone warm start whose candidates are cheap to make (``RANKS_CANDIDATES``: the shipped one) has
+# those with touches tried in order of their starting residual (``ranked_by_starting_residual``),
+# not in the model's order; the residuals may take this share of the warm start's budget (the
+# shipped model's: 1.1 ms a problem, median, 1.3 ms p95, runs/s31/review/r_upfront_cost.py)
+CONE_RANK_CANDIDATES = True
+CONE_RANK_SHARE = 0.1
+
+# s: auto's bang-bang switch-time optimisation (``auto_route.BANG_BANG_BUDGET``) with keep-out cones or
+# a pointing target (its pulse rounds in turn, each with what is left): on 90 seed-100 cone problems 1 s left 11 answers to collocation that 4 s verified; on
+# Melton's BP2 the round without pulses takes ~1 s and the one with 4 pairs, the answer, ~1.2 s
+CONE_BANG_BANG_BUDGET = 3.0
+
+
+def network_predicted_tf(model, prob) -> Optional[float]:
+    """The pointing-cones network's predicted final time for ``prob`` (its ``tf`` guess, ``None``
+    if it does not cover the problem or fails); ``model`` is the ensemble or the network."""
+    net = getattr(model, "network", model)
+    try:
+        g, why = net.guess_or_reason(prob)
+    except Exception:   # noqa: BLE001 - no prediction: the challenge runs
+        return None
+    return None if why or g is None or not (g.tf > 0.0) else float(g.tf)
+
+
+def cone_challenger(prob, sol, options, t0, gated=True) -> SlewSolution:
+    """``auto`` on a problem with cones: after the default route (collocation, then the exact
+    refinements) has answered, the shipped pointing-cones warm start (``warmstart.cone_ensemble``:
+    the solutions of the nearest tabled problems, then the network's guess) gets
+    ``CONE_WARM_BUDGET``. Its verified extremal replaces the answer only if it is faster (or
+    as fast within the answer's ``tf_tol`` and exact where the answer is not). Collocation
+    reaches local optima: on 1,000 held-out problems the warm start found a faster extremal
+    on 36 (23 by more than 1 %, up to 44 %); its other answers, often slower, are never used.
+    ``SlewSolution.warm_start`` records the challenge (``role: "challenger"``, ``won``).
+
+    ``gated`` (``solve``'s ``cone_challenge="gated"``, the default): only an answer slower than
+    ``CONE_CHALLENGE_GATE`` times the network's predicted tf is challenged. Since the 2 nearest
+    tabled solutions became collocation starts, the challenge rarely wins (3 of 600 problems), and
+    it cost about 0.1 s a problem; a large win is an answer far above the prediction (45 %: 1.77
+    times it). A skipped challenge is recorded (``challenged: False``, ``predicted_tf``)."""
+    from . import warmstart
+    left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
+    budget = min(float(options.get("warm_budget", CONE_WARM_BUDGET)), left)
+    try:
+        model = warmstart.default_cone_model() if budget > 0 else None
+    except Exception as e:   # noqa: BLE001 - a damaged shipped file: the verified answer stands
+        why = f"{type(e).__name__}: {e}"[:300]
+        sol.warm_start = {"model": "pointing-cones (shipped)", "covered": True, "role": "challenger",
+                          "challenged": False, "won": False, "error": why,
+                          "reason": f"the shipped pointing-cones model could not be read ({why})"}
+        return sol
+    if model is None:
+        return sol
+    if gated and sol.success:
+        predicted = network_predicted_tf(model, prob)
+        if predicted is not None and sol.tf <= CONE_CHALLENGE_GATE * predicted:
+            sol.warm_start = {"model": getattr(model, "name", type(model).__name__), "covered": True,
+                              "role": "challenger", "challenged": False, "won": False, "predicted_tf": predicted,
+                              "reason": f"the answer's tf {sol.tf:.9g} is not above the network's predicted "
+                                        f"{predicted:.9g} (cone_challenge='gated')"}
+            sol.wall_time = time.perf_counter() - t0
+            return sol
+    try:
+        ch, info, _ = warm_routes.try_warm_start(prob, "auto", "pointing-cones", dict(options, warm_budget=budget))
+    except Exception as e:   # noqa: BLE001 - the verified answer stands; the failure is recorded
+        ch, info = None, {"model": getattr(model, "name", type(model).__name__), "covered": True,
+                          "succeeded": False, "error": f"{type(e).__name__}: {e}"[:300]}
+    info = dict(info, role="challenger", **({"won": False, "challenged": True} if info.get("covered") else {}))
+    if ch is None or not ch.success:
+        sol.warm_start = info
+        sol.wall_time = time.perf_counter() - t0
+        return sol
+    info["tf"] = float(ch.tf)
+    tol = sol.tf_tol if sol.success and math.isfinite(sol.tf_tol) else 0.0
+    # faster; or, where the answer is approximate, exact and as fast within the answer's own
+    # accuracy (the approximate answer's tf is only known to tf_tol)
+    faster = ch.exact and (not sol.success or ch.tf < sol.tf * (1.0 - 1e-9)
+                           or (not sol.exact and ch.tf <= sol.tf + tol))
+    if not faster:
+        sol.warm_start = info
+        sol.wall_time = time.perf_counter() - t0
+        return sol
+    info["won"] = True
+    was = f"{sol.tf:.9g}" if sol.success else "no answer"
+    ch.route = (f"auto: the default route ({sol.route[:160]}) gave {was}; the pointing-cones warm start found a "
+                f"faster extremal → {ch.route}")
+    ch.message = f"{ch.message} Faster than the default route's answer ({was})."
+    ch.baseline_tf = sol.baseline_tf
+    ch = warm_routes.replace_answer(ch, sol, info)
+    ch.wall_time = time.perf_counter() - t0
+    return ch
+
+
+def cone_neighbour_starts(prob) -> list:
+    """The first ``CONE_NEIGHBOUR_STARTS`` candidates of the shipped pointing-cones warm start
+    (the nearest tabled solutions), as extra collocation starts for ``auto``; none if it does
+    not cover ``prob`` or cannot be read."""
+    from . import warmstart
+    try:
+        model = warmstart.resolve("pointing-cones", prob)
+        if model is None or model.covers(prob):
+            return []
+        # (the later candidates are deferred: only these are computed)
+        return list(itertools.islice(model.guess(prob).iter_all(), CONE_NEIGHBOUR_STARTS))
+    except Exception:   # noqa: BLE001 - a damaged or missing model: the route's own starts
+        return []
+
+
+def solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=False) -> SlewSolution:
+    """A guess for a problem with keep-out cones, tried candidate by candidate: with
+    ``touches``, the touch-point extremal (``cone_touch.solve_touch_guess``, switch-time
+    formulation first when the guess has a structure); without, the extremal of the problem
+    without cones, accepted only if its path clears every cone (certified). A deferred
+    candidate that cannot be made (a model's error) is skipped, and its error added to
+    ``errors`` (a list) where given. With ``rank`` (a model whose candidates are cheap to make,
+    ``RANKS_CANDIDATES``; and ``CONE_RANK_CANDIDATES``) every candidate is made first and those
+    with touches are tried in order of their starting residual (``ranked_by_starting_residual``,
+    within ``CONE_RANK_SHARE`` of the budget): a candidate that cannot be made is then reported
+    even where an earlier one converges."""
+    from .cone_touch import solve_touch_guess
+    t0 = time.perf_counter()
+    tried, last = 0, None
+    nit = nfev = 0
+    skipped = [] if errors is None else errors
+    cands = g.iter_all(errors=skipped)
+    if rank and CONE_RANK_CANDIDATES:
+        cands = ranked_by_starting_residual(prob, list(cands), deadline=t0 + CONE_RANK_SHARE * budget)
+    for cand in cands:
+        left = min(budget - (time.perf_counter() - t0), CONE_CANDIDATE_CAP if cap is None else cap)
+        if left <= 0.0:
+            break
+        tried += 1
+        if cand.touches:
+            sol = solve_touch_guess(prob, cand, tols=options.get("tols"), time_budget=left, smoothing=False)
+        else:
+            sol = multistart.guess_alone(prob.replace(cones=[]), cand, options, left, with_candidates=False)
+            if sol.success and not certify_clear(prob, sol):
+                sol.success, sol.status = False, STATUS_VERIFICATION_FAILED
+                sol.message = (f"the extremal without cones enters a cone (certified clearance "
+                               f"{sol.verification['cone_clearance']['value']:.3g} rad)")
+            sol.problem = prob
+        nit, nfev = nit + sol.nit, nfev + sol.nfev
+        last = sol
+        if sol.success:
+            break
+    if last is None:
+        why = f"no candidate could be made ({'; '.join(skipped)[:300]})" if skipped else "no time left for the guess"
+        return SlewSolution(False, STATUS_NOT_CONVERGED, why, 0, 0,
+                            time.perf_counter() - t0, method="indirect", problem=prob, route="learned guess: no time")
+    last.nit, last.nfev, last.n_candidates = nit, nfev, tried
+    last.wall_time = time.perf_counter() - t0
+    return last
+
+
+def ranked_by_starting_residual(prob, cands, deadline=math.inf) -> list:
+    """``cands`` with those that have touches reordered by their starting residual
+    (``cone_touch.starting_residuals``, lowest first; ties keep their order), each in the place
+    of one that has touches; the others keep their places. On 200 held-out problems with every
+    candidate run on its own (``runs/s31/all_cands.py``, ``rank_sim.py``), the nearest
+    solutions' order put the first that converges at a median of 35.5 ms, this order at 30.9 ms
+    (the residuals included: 2.5 ms as first written, 0.9 ms now), 131 and 130 problems
+    converging, and fewer answers slower than the best candidate's (15 against 20). Residuals
+    not evaluated by ``deadline``
+    count as infinite (those candidates keep their order, after the others)."""
+    from .cone_touch import starting_residuals
+    slots = [k for k, c in enumerate(cands) if c.touches]
+    if len(slots) < 2:
+        return cands
+    keys = dict(zip(slots, starting_residuals(prob, [cands[k] for k in slots], deadline=deadline)))
+    out = list(cands)
+    for k, j in zip(slots, sorted(slots, key=lambda j: keys[j])):
+        out[k] = cands[j]
+    return out
+
+
+# auto with cones: the 2 nearest tabled solutions of the shipped pointing-cones warm start join
+# collocation's starts. On 150 seeded cone problems (seed 7) the answers more than 1e-4 slower
+# than the best found went from 9 to 4 (more than 1 %: 4 to 2), the mean gap from 1.4e-3 to
+# 1.1e-3, at +14 % median time; 4 neighbours did no better (runs/s15/nbr_starts.py)
+CONE_NEIGHBOUR_STARTS = 2
+
+# ... and with them, collocation's own starts drop from 4 (the eigenaxis slew and 3 perturbations
+# of it) to 2: the neighbours bring the variety the perturbations were for. 100 seeded problems
+# (seeds 0 and 1, runs/s29/ab_cones.py) gave the same answers and a median 9-12 % lower
+# (522 -> 474 ms, 489 -> 430 ms); 1 start lost 0.3-1 % on 3 of 60
+CONE_OWN_STARTS_WITH_NEIGHBOURS = 2
+
+# a cone whose clearance on the collocation answer exceeds this (rad) is taken as inactive
+INACTIVE_CONE_MARGIN = 1e-3
+TOUCH_BUDGET = 1.5   # s: the touch-point refinement's smoothing path after a failed direct attempt
+
+
+def refine_inactive_cones(prob, col, options, budget_left, label="auto"):
+    """Exact answer for a cone problem whose cones are all inactive, or ``None``.
+
+    If the collocation answer stays ``INACTIVE_CONE_MARGIN`` clear of every cone, the
+    constrained optimum is an extremal of the problem without cones: refine it by the
+    indirect solver from the collocation costates, then accept it only if it is not slower
+    than the collocation answer and its re-propagated path (switch times alone, RK4)
+    clears every cone at every instant (certified lower bound, ``solvers.clearance``).
+    An unconstrained extremal that is feasible and as fast as the constrained optimum is
+    the constrained optimum.
+    """
+    per_axis = math.isinf(prob.torque_norm)
+    cc = col.verification.get("cone_clearance", {})
+    if not per_axis or not prob.is_rest_to_rest or not (cc.get("value", -1.0) > INACTIVE_CONE_MARGIN):
+        return None
+    from .switch_time_opt import singular_arc_evidence
+    singular = singular_arc_evidence(prob.replace(cones=[]), col)
+    if singular:
+        # no bang-bang extremal near it: the refinement would spend its 2 s and fail (seen on 14
+        # of 400 cone problems; on 45 with inactive cones and an exact answer no such run showed)
+        col.route += f"; cones inactive (clearance {cc['value']:.3g} rad), no exact refinement: {singular}"
+        return None
+    ref, accepted = auto_route.refine_collocation(prob.replace(cones=[]), col, options, 1, min(2.0, stage_budget.left(budget_left, 0.0)))
+    if not accepted or not certify_clear(prob, ref):
+        return None
+    ref.route = (f"{label}: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
+                 f"indirect refinement without cones: {ref.route}; certified clearance "
+                 f"{ref.verification['cone_clearance']['value']:.3g} rad")
+    return ref
+
+
+def certify_clear(prob, sol):
+    """Record on ``sol`` (an answer of ``prob`` without its cones) the certified clearance of
+    its path from the cones of ``prob`` (``cone_clearance``) and rebind it to ``prob``;
+    ``True`` if the path clears every cone at every instant."""
+    from .clearance import CLEARANCE_TOL, answer_clearance
+    certified = answer_clearance(prob, sol)
+    sol.verification["cone_clearance"] = make_check(certified, CLEARANCE_TOL, certified >= CLEARANCE_TOL)
+    sol.problem = prob
+    return certified >= CLEARANCE_TOL
+
+
+def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto"):
+    """When collocation fails on a cone problem: the answer of the problem without its cones,
+    if its path clears every cone at every instant (certified), else ``None`` (also with no time
+    left, ``budget_left ≤ 0``). A cone far from
+    the path can still upset the NLP; the unconstrained optimum that is feasible is the
+    constrained optimum."""
+    if budget_left <= 0.0:      # no time left: the route it would take starts with an NLP build
+        return None
+    free_prob = prob.replace(cones=[])
+    opts = dict(options, time_budget=stage_budget.left(budget_left, 0.0))
+    free = (multistart.solve_indirect(free_prob, "indirect", None, **opts) if exact_only
+            else auto_route.solve_auto(free_prob, None, col_opts, opts))
+    if not free.success or (exact_only and not free.exact) or not certify_clear(prob, free):
+        return None
+    free.route = (f"{label}: collocation with the cones failed ({col.message[:120]}) → the problem without cones, "
+                  f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
+                  f"{free.route}")
+    return free
+
+
+def bang_bang_cones(prob, col, options, left):
+    """``switch_time_cones.bang_bang_cone_answer`` within ``min(CONE_BANG_BANG_BUDGET, left)`` (``None``
+    when less than 50 ms are left, or it gives nothing)."""
+    if not col.success or left <= 0.05:
+        return None
+    from .switch_time_cones import bang_bang_cone_answer
+    return bang_bang_cone_answer(prob, col, time_budget=min(CONE_BANG_BANG_BUDGET, left), tols=options.get("tols"))
+
+
+def settle_tf_tol(sol, budget) -> None:
+    """``collocation.settle_tf_tol`` (imported where used, as collocation is everywhere here)."""
+    from .collocation import settle_tf_tol as settle
+    settle(sol, budget)
+
+
+def rel_tol(col) -> float:
+    """The relative tolerance a refinement of ``col`` may be slower by (each side): its
+    ``tf_tol`` relative, at least 1e-3 (NaN, not measured or deferred: 1e-3)."""
+    return max(float(col.tf_tol) / col.tf if col.tf_tol == col.tf_tol else 0.0, 1e-3)
+
+
+def refine_touching_cones(prob, col, options, budget=TOUCH_BUDGET) -> SlewSolution:
+    """The exact extremal whose path touches cones at isolated instants (costate jumps there,
+    ``solvers.cone_touch``), from a collocation answer; ``success=False`` if there is none
+    near it (a boundary arc, or Newton fails), or if it is slower than collocation's.
+    ``budget`` (s): the caller's time left, a hard stop (the smoothing path gets at most
+    ``TOUCH_BUDGET`` of it)."""
+    from .cone_touch import solve_touch
+    deadline = time.perf_counter() + budget
+    touch_budget = min(TOUCH_BUDGET, budget)
+    sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=touch_budget, deadline=deadline)
+    slower = sol.verification.get("not_slower_than_seed", {})
+    if not sol.success and getattr(col, "_tf_tol_pending", None) is not None and not slower.get("passed", True):
+        # slower than the 1e-3 floor allows: the deferred tf_tol may allow more, and then the
+        # touch extremal is solved again against it
+        rel = rel_tol(col)
+        settle_tf_tol(col, min(TOUCH_BUDGET, deadline - time.perf_counter()))
+        if rel_tol(col) > rel and time.perf_counter() < deadline:
+            sol = solve_touch(prob, col, tols=options.get("tols"), time_budget=touch_budget, deadline=deadline)
+    sol.nit += col.nit
+    sol.nfev += col.nfev
+    return sol
+
+
+def solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
+    """The indirect route for a problem with keep-out cones (see the module docstring)."""
+    from .collocation import solve_collocation
+    from .cone_penalty import SEGMENTS, solve_penalised
+    t0 = time.perf_counter()
+    budget = float(options.get("time_budget", 60.0))
+    if not math.isinf(prob.torque_norm):
+        raise ValueError(f"torque_norm: with keep-out cones the indirect route handles the per-axis bound "
+                         f"('inf') only, got p = {prob.torque_norm:g}; use method='collocation' or 'auto'")
+    segments = int(options.get("segments", SEGMENTS))
+    if segments < 2:
+        raise ValueError(f"segments: the cone penalty route uses multiple shooting, needs ≥ 2, got {segments}")
+    col = solve_collocation(prob, guess=guess, **dict({"time_budget": budget, "defer_tf_tol": True},
+                                                      **col_opts))
+    if not col.success:
+        free = clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
+                                    exact_only=True, label="indirect with cones")
+        if free is not None:
+            free.wall_time = time.perf_counter() - t0
+            return free
+        col.success = False
+        col.method = "indirect"
+        col.route = f"indirect with cones: collocation seed failed ({col.message[:200]})"
+        col.wall_time = time.perf_counter() - t0
+        return col
+    ref = refine_inactive_cones(prob, col, options, budget - (time.perf_counter() - t0), label="indirect with cones")
+    if ref is not None:
+        ref.wall_time = time.perf_counter() - t0
+        return ref
+    touch = refine_touching_cones(prob, col, options, stage_budget.left(budget, time.perf_counter() - t0))
+    if touch.success:
+        touch.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {touch.route}"
+        touch.wall_time = time.perf_counter() - t0
+        return touch
+    settle_tf_tol(col, budget - (time.perf_counter() - t0))   # the penalty route's tf_tol builds on it
+    sol = solve_penalised(prob, col, segments=segments, tols=options.get("tols"),
+                          time_budget=stage_budget.left(budget, time.perf_counter() - t0))
+    sol.nit += col.nit + touch.nit
+    sol.nfev += col.nfev + touch.nfev
+    if sol.success:
+        # the penalised extremal's costates carry the touch jumps smoothed out, a better seed
+        # for the exact touch refinement than collocation's
+        exact = refine_touching_cones(prob, sol, options, stage_budget.left(budget, time.perf_counter() - t0))
+        if exact.success:
+            exact.route = f"indirect with cones: collocation ({col.wall_time:.3g} s) → {sol.route} → {exact.route}"
+            exact.wall_time = time.perf_counter() - t0
+            return exact
+    sol.route = f"indirect with cones: collocation ({col.wall_time:.3g} s, tf {col.tf:.6g}) → {sol.route}"
+    sol.wall_time = time.perf_counter() - t0
+    return sol
