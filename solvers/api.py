@@ -147,7 +147,7 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     budget (docs/SOLVER.md, "Short budgets with the fallback"). The budget's clock starts after the compiled kernels of
     the problem's kind are loaded (``kernel_loading``; the first solve of each kind in a process, reported as
     ``kernel_load_time``; ``solvers.load_kernels`` does it at start-up), and collocation builds
-    no NLP the budget left cannot pay for (``collocation.NoTimeToBuild``). For a p-norm bound with
+    no NLP the budget left cannot pay for (``collocation_nlp.NoTimeToBuild``). For a p-norm bound with
     a gyroscopic term the fallback's profile has at most 1,000 angle steps
     (``FALLBACK_GRID_PNORM_GYRO``; at most 1.1e-4 slower than ``method="eigenaxis"``'s 4,000).
     The route's message says why the fallback was needed.
@@ -217,7 +217,7 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         # an infeasible problem is an input error, found before any loading; the grid test
         # (about 0.1 s for three mutually overlapping cones) is remembered, not repeated inside
         # the time budget
-        from .collocation import check_cones_passable
+        from .cone_passability import check_cones_passable
         check_cones_passable(prob)
     # the kernels are loaded (on a fresh install, compiled) before the clock starts: the time
     # budget is for solving, and loading inside it would cut the first solve of a process short

@@ -156,25 +156,24 @@ targets inside a cone are rejected by ``SlewProblem`` itself.
 """
 from __future__ import annotations
 
-import copy
 import inspect
 import math
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
-from typing import List, Optional
+from typing import Optional
 
 import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.dynamics import state_rhs
-from slew_env.core.quaternion import qerror_angle, qfrom_two_vectors, qmul, qrotate
-from slew_env.core.cones import angle_between, perpendicular_basis
+from slew_env.core.quaternion import qerror_angle, qrotate
+from slew_env.core.cones import angle_between
 from .clearance import CLEARANCE_TOL, cone_clearances, margins
 from .guesses import Guess
 from .verify import failure_text, make_check
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
+from . import collocation_guesses, collocation_nlp, cone_passability
 
 TRANSCRIPTIONS = ("hermite-simpson",)
 
@@ -208,865 +207,14 @@ COSTATE_ACCURACY = {
 # IPOPT iterations allowed to one start on the coarse grid (a start that needs more is
 # not worth refining; converged coarse solves take 20-200)
 _COARSE_MAX_ITER = 200
-# IPOPT statuses taken as converged: "acceptable" is a solve that met the (looser) acceptable
-# tolerances, with constraints to 1e-6; the independent replay then decides
-CONVERGED_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-_P_SMOOTH_DELTA = 1e-10
+
 # re-propagation samples per interval: dense enough for the certified clearance's
 # second-order bound to stay within 1e-7 rad of the sampled margin
 _SAMPLES_PER_INTERVAL = 96
 
 
-# ----------------------------------------------------------------------------- helpers
-def _qexp_body(q0, n, theta):
-    """``q0 ⊗ [cos θ/2, n sin θ/2]`` for arrays of ``theta``."""
-    q0 = np.array(q0, dtype=float)    # writable, whatever the caller's: one kernel signature
-    th = np.asarray(theta, dtype=float)
-    d = np.stack([np.cos(0.5 * th), n[0] * np.sin(0.5 * th), n[1] * np.sin(0.5 * th),
-                  n[2] * np.sin(0.5 * th)], axis=-1)
-    return np.array([qmul(q0, di) for di in d.reshape(-1, 4)]).reshape(d.shape)
-
-
-@dataclass
-class _Scaled:
-    """The problem in nondimensional units."""
-    prob: SlewProblem
-    tau: float
-    umax0: float
-    J: np.ndarray
-    U: np.ndarray
-    x0: np.ndarray
-    wf: np.ndarray
-    rate: Optional[np.ndarray]
-    p: float
-
-    @classmethod
-    def of(cls, prob):
-        Jmax = float(prob.inertia.max())
-        umax0 = float(prob.torque_max.max())
-        tau = math.sqrt(Jmax / umax0)
-        rate = None if prob.rate_max is None else prob.rate_max * tau
-        return cls(prob, tau, umax0, prob.inertia / Jmax, prob.torque_max / umax0,
-                   np.concatenate([prob.q0, prob.omega0 * tau]), prob.omegaf * tau, rate, prob.torque_norm)
-
-
-# ----------------------------------------------------------------------------- cone topology
-def _caps_cannot_separate(cones) -> bool:
-    """True when the union of the cones' closed caps certainly leaves the rest of the sphere
-    connected, so no two free directions are separated (no grid needed).
-
-    Caps narrower than a hemisphere are geodesically convex, so each non-empty intersection
-    of them is contractible and the union has the homotopy type of their nerve (the nerve
-    theorem). If no chain of pairwise-overlapping caps closes a loop (the overlap graph is a
-    forest), the nerve has no 1-cycles, and by Alexander duality the complement of the union
-    is connected. With one or two cones, or three that do not all overlap, this settles it.
-    """
-    if any(c.half_angle >= 0.5 * math.pi for c in cones):
-        return False
-    n = len(cones)
-    parent = list(range(n))
-
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-    for i in range(n):
-        for j in range(i + 1, n):
-            cosang = float(np.clip(np.dot(cones[i].axis, cones[j].axis), -1.0, 1.0))
-            # closed caps meet when the axes are at most α_i + α_j apart (tangency counts)
-            if math.acos(cosang) <= cones[i].half_angle + cones[j].half_angle + 1e-12:
-                ri, rj = root(i), root(j)
-                if ri == rj:
-                    return False        # a loop of overlapping caps: let the grid decide
-                parent[ri] = rj
-    return True
-
-
-def cones_block_every_path(problem, resolution_deg=0.5):
-    """True when the keep-out cones certainly separate the start and target sensor directions.
-
-    When no loop of pairwise-overlapping cones exists (``_caps_cannot_separate``, exact for
-    cones narrower than a hemisphere: one or two cones, or three that do not all overlap),
-    nothing is separated and no grid is needed. Otherwise a flood fill on a
-    latitude–longitude grid of the sphere (about 0.1 s). A cell counts as blocked only
-    when it lies inside a cone by more than its own radius, so the test is optimistic: a
-    gap narrower than the grid is treated as open (IPOPT then decides), and a ``True`` is
-    never wrong by more than the resolution.
-    """
-    if not problem.cones or _caps_cannot_separate(problem.cones):
-        return False
-    # (remembered: ``solve`` asks before its clock starts, collocation again inside it)
-    key = (np.asarray(problem.start_direction, float).tobytes(), np.asarray(problem.target_direction, float).tobytes(),
-           tuple((np.asarray(c.axis, float).tobytes(), float(c.half_angle)) for c in problem.cones),
-           float(resolution_deg))
-    blocked = _SEPARATION.get(key)
-    if blocked is None:
-        blocked = _SEPARATION[key] = _grid_separates(problem, resolution_deg)
-        for old in list(_SEPARATION)[:-256]:      # (pop: another thread may evict the same key)
-            _SEPARATION.pop(old, None)
-    return blocked
-
-
-_SEPARATION: dict = {}
-
-
-def check_cones_passable(problem) -> None:
-    """``ValueError`` (field ``cones``) when the cones separate the start and target sensor
-    directions (``cones_block_every_path``): an infeasible problem is an input error."""
-    if problem.cones and cones_block_every_path(problem):
-        raise ValueError(f"cones: the {len(problem.cones)} keep-out cone(s) separate the start and target "
-                         "sensor directions: every path crosses a cone (infeasible)")
-
-
-def _grid_separates(problem, resolution_deg):
-    """The flood fill of ``cones_block_every_path``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    d = math.radians(resolution_deg)
-    n_lat = int(math.ceil(math.pi / d))
-    n_lon = int(math.ceil(2 * math.pi / d))
-    lat = -0.5 * math.pi + (np.arange(n_lat) + 0.5) * math.pi / n_lat
-    lon = (np.arange(n_lon) + 0.5) * 2 * math.pi / n_lon
-    LA, LO = np.meshgrid(lat, lon, indexing="ij")
-    P = np.stack([np.cos(LA) * np.cos(LO), np.cos(LA) * np.sin(LO), np.sin(LA)], axis=-1)
-    # a bound on the cell's angular circumradius: half-diagonal with the longitude extent
-    # of its wider (equator-side) edge, plus 1 %; a cell is blocked only when its centre is
-    # deeper inside a cone than that, i.e. the whole cell is inside the cone. A path from
-    # start to target crosses a chain of edge- or corner-adjacent cells, each holding a
-    # free point and so counted free: different components prove there is no path.
-    dlat = math.pi / n_lat
-    wide = np.cos(np.maximum(0.0, np.abs(LA) - 0.5 * dlat))
-    rad = 1.01 * 0.5 * np.hypot(dlat, 2 * math.pi / n_lon * wide) + 1e-9
-    free = np.ones((n_lat, n_lon), dtype=bool)
-    for c in problem.cones:
-        ang = np.arccos(np.clip(P @ c.axis, -1.0, 1.0))
-        free &= ang > c.half_angle - rad
-    idx = np.arange(n_lat * n_lon).reshape(n_lat, n_lon)
-    rows, cols = [], []
-
-    def link(a, b, m):
-        rows.append(a[m])
-        cols.append(b[m])
-    right = np.roll(idx, -1, axis=1)
-    link(idx, right, free & np.roll(free, -1, axis=1))
-    for shift in (0, 1, -1):   # down, down-right, down-left
-        down = np.roll(idx[1:], shift, axis=1)
-        fd = np.roll(free[1:], shift, axis=1)
-        link(idx[:-1], down, free[:-1] & fd)
-    # cells around each pole touch each other
-    for r in (0, n_lat - 1):
-        ring = idx[r][free[r]]
-        if ring.size > 1:
-            rows.append(ring[:-1])
-            cols.append(ring[1:])
-    rows = np.concatenate(rows)
-    cols = np.concatenate(cols)
-    G = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(idx.size, idx.size))
-    _, labels = connected_components(G, directed=False)
-
-    def cell(v):
-        v = np.asarray(v, float) / np.linalg.norm(v)
-        la = math.asin(max(-1.0, min(1.0, v[2])))
-        lo = math.atan2(v[1], v[0]) % (2 * math.pi)
-        i = min(n_lat - 1, int((la + 0.5 * math.pi) / (math.pi / n_lat)))
-        j = min(n_lon - 1, int(lo / (2 * math.pi / n_lon)))
-        # the start / target may sit on a cone boundary: use the nearest free cell around it
-        best = None
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                ii, jj = i + di, (j + dj) % n_lon
-                if 0 <= ii < n_lat and free[ii, jj]:
-                    dist = float(np.linalg.norm(P[ii, jj] - v))
-                    if best is None or dist < best[0]:
-                        best = (dist, idx[ii, jj])
-        return None if best is None else best[1]
-    a = cell(problem.start_direction)
-    b = cell(problem.target_direction)
-    if a is None or b is None:
-        return True
-    return labels[a] != labels[b]
-
-
-# ----------------------------------------------------------------------------- the NLP
-# Built NLPs are cached by structure (interval count, target kind, number of cones, norm,
-# IPOPT options): inertia, bounds, targets, cones and the mesh are NLP parameters or
-# variable / constraint bounds, so one build serves every problem of the same shape.
-_CACHE: "OrderedDict[tuple, _Template]" = OrderedDict()
-_CACHE_SIZE = 32   # (cone problems alone use 3 grids × 1-3 cones, and a full-attitude solve 2 more)
-
-
-class _Deadline:
-    """IPOPT iteration callback that stops the solve at a wall-clock deadline."""
-
-    def __init__(self, ca, nx, ng, npar):
-        deadline = self
-
-        class CB(ca.Callback):
-            def __init__(self):
-                ca.Callback.__init__(self)
-                self.construct("colloc_deadline", {})
-
-            def get_n_in(self):
-                return ca.nlpsol_n_out()
-
-            def get_n_out(self):
-                return 1
-
-            def get_name_in(self, i):
-                return ca.nlpsol_out(i)
-
-            def get_name_out(self, i):
-                return "ret"
-
-            def get_sparsity_in(self, i):
-                n = ca.nlpsol_out(i)
-                if n == "f":
-                    return ca.Sparsity.scalar()
-                if n in ("x", "lam_x"):
-                    return ca.Sparsity.dense(nx)
-                if n in ("g", "lam_g"):
-                    return ca.Sparsity.dense(ng)
-                return ca.Sparsity.dense(npar)
-
-            def eval(self, arg):
-                return [1 if time.perf_counter() > deadline.at else 0]
-        self.at = math.inf
-        self.cb = CB()
-
-
-class _Template:
-    """Separated Hermite–Simpson NLP of one structure, with its IPOPT solver."""
-
-    def __init__(self, N, pointing, n_cones, p, rate, tol, max_iter, verbose):
-        import casadi as ca
-        self.N, self.pointing, self.n_cones, self.p = N, pointing, n_cones, p
-        SX = ca.SX
-        # ---- parameters
-        nt = 9 if pointing else 4
-        P = SX.sym("P", 3 + 3 + nt + 3 + 4 * n_cones + 1 + N)
-        o = 0
-        Jp = P[o:o + 3]; o += 3
-        Up = P[o:o + 3]; o += 3
-        tdat = P[o:o + nt]; o += nt
-        sb = P[o:o + 3]; o += 3
-        cone_p = [P[o + 4 * c:o + 4 * c + 4] for c in range(n_cones)]; o += 4 * n_cones
-        delta = P[o]; o += 1
-        mesh = P[o:o + N]; o += N
-        self.n_par = int(P.shape[0])
-        self.i_par = dict(J=0, U=3, tdat=6, sb=6 + nt, cones=6 + nt + 3, delta=6 + nt + 3 + 4 * n_cones,
-                          mesh=6 + nt + 3 + 4 * n_cones + 1)
-        # ---- dynamics
-        x = SX.sym("x", 7)
-        u = SX.sym("u", 3)
-        J = SX.sym("J", 3)
-        q0, q1, q2, q3 = x[0], x[1], x[2], x[3]
-        w0, w1, w2 = x[4], x[5], x[6]
-        fx = ca.vertcat(0.5 * (-q1 * w0 - q2 * w1 - q3 * w2),
-                        0.5 * (q0 * w0 + q2 * w2 - q3 * w1),
-                        0.5 * (q0 * w1 - q1 * w2 + q3 * w0),
-                        0.5 * (q0 * w2 + q1 * w1 - q2 * w0),
-                        (u[0] - (J[2] - J[1]) * w1 * w2) / J[0],
-                        (u[1] - (J[0] - J[2]) * w2 * w0) / J[1],
-                        (u[2] - (J[1] - J[0]) * w0 * w1) / J[2])
-        f = ca.Function("f", [x, u, J], [fx])
-        # one interval: Simpson and Hermite defects
-        xk, xm, xk1 = SX.sym("xk", 7), SX.sym("xm", 7), SX.sym("xk1", 7)
-        uk, um, uk1 = SX.sym("uk", 3), SX.sym("um", 3), SX.sym("uk1", 3)
-        h = SX.sym("h")
-        fk, fm, fk1 = f(xk, uk, J), f(xm, um, J), f(xk1, uk1, J)
-        simpson = xk1 - xk - h / 6.0 * (fk + 4.0 * fm + fk1)
-        hermite = xm - 0.5 * (xk + xk1) - h / 8.0 * (fk - fk1)
-        D = ca.Function("D", [xk, xm, xk1, uk, um, uk1, h, J], [simpson, hermite])
-        nu, mu = SX.sym("nu", 7), SX.sym("mu", 7)
-        Lint = ca.dot(nu, simpson) + ca.dot(mu, hermite)
-        # d/dx_k and d/dx_k+1 of one interval's part of the Lagrangian (covector mapping)
-        self.dL = ca.Function("dL", [xk, xm, xk1, uk, um, uk1, h, J, nu, mu],
-                              [ca.gradient(Lint, xk), ca.gradient(Lint, xk1)]).map(N)
-        # homogeneous sensor direction q ⊗ [0, s] ⊗ q* (degree 2 in q)
-        qs = SX.sym("q", 4)
-        s_ = SX.sym("s", 3)
-        a0, a1, a2, a3 = qs[0], qs[1], qs[2], qs[3]
-        dv = ca.vertcat(
-            (a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3) * s_[0] + 2 * (a1 * a2 - a0 * a3) * s_[1]
-            + 2 * (a1 * a3 + a0 * a2) * s_[2],
-            2 * (a1 * a2 + a0 * a3) * s_[0] + (a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3) * s_[1]
-            + 2 * (a2 * a3 - a0 * a1) * s_[2],
-            2 * (a1 * a3 - a0 * a2) * s_[0] + 2 * (a2 * a3 + a0 * a1) * s_[1]
-            + (a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3) * s_[2])
-        dvec = ca.Function("d", [qs, s_], [dv])
-        # ---- variables
-        T = SX.sym("T")
-        X = SX.sym("X", 7, N + 1)
-        Xm = SX.sym("Xm", 7, N)
-        Uk = SX.sym("U", 3, N + 1)
-        Um = SX.sym("Um", 3, N)
-        w = ca.vertcat(T, ca.vec(X), ca.vec(Xm), ca.vec(Uk), ca.vec(Um))
-        nx = int(w.shape[0])
-        self.nx = nx
-        off = 1
-        self.iX = off + np.arange(7 * (N + 1)).reshape(N + 1, 7); off += 7 * (N + 1)
-        self.iXm = off + np.arange(7 * N).reshape(N, 7); off += 7 * N
-        self.iU = off + np.arange(3 * (N + 1)).reshape(N + 1, 3); off += 3 * (N + 1)
-        self.iUm = off + np.arange(3 * N).reshape(N, 3); off += 3 * N
-        # ---- constraints (layout recorded for the bounds and the multipliers)
-        g = []
-        self.layout = {}
-
-        def add(name, expr):
-            start = sum(int(e.numel()) for e in g)
-            g.append(ca.vec(expr))
-            self.layout[name] = (start, start + int(expr.numel()))
-        Jrep = ca.repmat(Jp, 1, N)
-        S_, H_ = D.map(N)(X[:, :N], Xm, X[:, 1:], Uk[:, :N], Um, Uk[:, 1:], T * mesh.T, Jrep)
-        add("simpson", S_)
-        add("hermite", H_)
-        qN = X[0:4, N]
-        if pointing:
-            e1, e2, tgt = tdat[0:3], tdat[3:6], tdat[6:9]
-            dN = dvec(qN, sb)
-            add("terminal", ca.vertcat(ca.dot(e1, dN), ca.dot(e2, dN)))
-            add("terminal_sign", ca.dot(tgt, dN))
-        else:
-            qf = tdat
-            # Im(qf* ⊗ q): linear in q, zero on the line through ±qf
-            r = ca.vertcat(qf[0] * qN[1] - qf[1] * qN[0] - qf[2] * qN[3] + qf[3] * qN[2],
-                           qf[0] * qN[2] - qf[2] * qN[0] - qf[3] * qN[1] + qf[1] * qN[3],
-                           qf[0] * qN[3] - qf[3] * qN[0] - qf[1] * qN[2] + qf[2] * qN[1])
-            add("terminal", r)
-        self.n_eq = self.layout["terminal"][1]
-        # torque bound between samples: Bernstein middle coefficient of each interval's
-        # quadratic control, b = 2 u_m - (u_k + u_k+1)/2 (see the module docstring)
-        Bm = 2.0 * Um - 0.5 * (Uk[:, :N] + Uk[:, 1:])
-        if math.isinf(p):
-            add("bernstein", Bm)
-        else:
-            v = SX.sym("v", 3)
-            if p == 2.0:
-                ball = ca.sumsqr(v / Up)
-            else:
-                z = v / Up
-                ball = ca.sum1((z * z + _P_SMOOTH_DELTA) ** (p / 2.0))
-            Ball = ca.Function("ball", [v, P], [ball])
-            allU = ca.horzcat(Uk, Um, Bm)
-            add("ball", Ball.map(allU.shape[1])(allU, ca.repmat(P, 1, allU.shape[1])))
-        # rate limit between samples: on each interval the scheme's rate is the cubic
-        # Hermite interpolant of (ω_k, ω̇_k, ω_k+1, ω̇_k+1), whose Bernstein coefficients are
-        # ω_k, ω_k + h ω̇_k / 3, ω_k+1 - h ω̇_k+1 / 3, ω_k+1: bounding the inner two (the outer
-        # ones are the node values, box-bounded) keeps the whole cubic within the limit
-        if rate:
-            hh = SX.sym("hh")
-            wd_k = f(xk, uk, J)[4:7]
-            wd_k1 = f(xk1, uk1, J)[4:7]
-            RB = ca.Function("rb", [xk, xk1, uk, uk1, hh, J],
-                             [ca.vertcat(xk[4:7] + hh / 3.0 * wd_k, xk1[4:7] - hh / 3.0 * wd_k1)])
-            add("rate_bernstein", RB.map(N)(X[:, :N], X[:, 1:], Uk[:, :N], Uk[:, 1:], T * mesh.T, Jrep))
-        # keep-out cones at interior nodes and all midpoints (the ends are fixed by the
-        # start and the target and may sit on a boundary); back-off δ ramps up over the
-        # first and last two intervals
-        ramp_n = np.array([min(1.0, min(k, N - k) / 2.0) for k in range(1, N)])
-        ramp_m = np.array([min(1.0, min(k + 0.5, N - k - 0.5) / 2.0) for k in range(N)])
-        ramp = np.concatenate([ramp_n, ramp_m])
-        Qc = ca.horzcat(X[0:4, 1:N], Xm[0:4, :])
-        qc = SX.sym("qc", 4)
-        ax = SX.sym("ax", 3)
-        al = SX.sym("al")
-        rw = SX.sym("rw")
-        cexpr = ca.dot(ax, dvec(qc, sb)) - ca.cos(al + rw * delta) * ca.sumsqr(qc)
-        Cf = ca.Function("cone", [qc, ax, al, rw, P], [cexpr]).map(2 * N - 1)
-        for c in range(n_cones):
-            add(f"cone{c}", Cf(Qc, ca.repmat(cone_p[c][0:3], 1, 2 * N - 1),
-                              ca.repmat(cone_p[c][3], 1, 2 * N - 1), ca.DM(ramp).T,
-                              ca.repmat(P, 1, 2 * N - 1)))
-        gall = ca.vertcat(*g)
-        self.ng = int(gall.shape[0])
-        self.geval = ca.Function("g", [w, P], [gall])
-        self.deadline = _Deadline(ca, nx, self.ng, self.n_par)
-        opts = {"ipopt.tol": tol, "ipopt.max_iter": int(max_iter), "ipopt.print_level": 5 if verbose else 0,
-                "print_time": bool(verbose), "ipopt.sb": "yes", "ipopt.constr_viol_tol": min(1e-8, tol),
-                "ipopt.mu_strategy": "adaptive", "iteration_callback": self.deadline.cb,
-                # an "acceptable" stop (degenerate NLPs: singular arcs, where a slack axis's
-                # torque is not unique) must still be feasible; the replay verifies it
-                "ipopt.acceptable_constr_viol_tol": 1e-6}
-        self.solver = ca.nlpsol("colloc", "ipopt", {"x": w, "p": P, "f": T, "g": gall}, opts)
-        self._nlp_dict, self._opts = {"x": w, "p": P, "f": T, "g": gall}, opts
-        self._warm = None
-
-    @property
-    def warm_solver(self):
-        """The same NLP with IPOPT started from a given primal-dual point (built when first
-        needed). A back-off re-solves an answer with its constraints moved by about 1e-5: the
-        cold start pushes the variables off their bounds (the bang-bang torques all sit on
-        them) and out of the answer's basin, into another local optimum (seen: +5.5 %)."""
-        if self._warm is None:
-            import casadi as ca
-            opts = dict(self._opts, **{"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-7,
-                                       "ipopt.warm_start_bound_push": 1e-9, "ipopt.warm_start_bound_frac": 1e-9,
-                                       "ipopt.warm_start_slack_bound_push": 1e-9,
-                                       "ipopt.warm_start_slack_bound_frac": 1e-9,
-                                       "ipopt.warm_start_mult_bound_push": 1e-9})
-            self._warm = ca.nlpsol("colloc_warm", "ipopt", self._nlp_dict, opts)
-        return self._warm
-
-
-class NoTimeToBuild(Exception):
-    """Building an NLP that is not in the cache would pass the deadline (the build, in CasADi,
-    cannot be interrupted)."""
-
-
-def build_estimate(N, n_cones) -> float:
-    """Seconds to build an NLP of ``N`` intervals and ``n_cones`` cones, with a margin: measured
-    2026-11-24, 0.055 s (N = 10) to 0.41 s (N = 120) without cones, 1.15 s with 3 cones at
-    N = 120; a review's 92 builds (rate limits and p-norm bounds among them) took 0.67–1.35 times
-    the formula without the margin."""
-    return BUILD_MARGIN * (0.02 + 3.3e-3 * N * (1.0 + 0.6 * n_cones))
-
-
-BUILD_MARGIN = 1.4
-
-
-def _template(N, pointing, n_cones, p, rate, tol, max_iter, verbose, deadline=math.inf) -> _Template:
-    key = (N, pointing, n_cones, p, rate, tol, max_iter, verbose)
-    tpl = _CACHE.get(key)
-    if tpl is None:
-        left, est = deadline - time.perf_counter(), build_estimate(N, n_cones)
-        if left < est:
-            raise NoTimeToBuild(f"building the NLP of N={N} intervals and {n_cones} cone(s), its first use in "
-                                f"this process, takes about {est:.2g} s: {max(left, 0.0):.3g} s of the budget left")
-        tpl = _Template(N, pointing, n_cones, p, rate, tol, max_iter, verbose)
-        _CACHE[key] = tpl
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    else:
-        _CACHE.move_to_end(key)
-    return tpl
-
-
-@dataclass
-class _Run:
-    T: float
-    w: np.ndarray
-    lam_g: np.ndarray
-    status: str
-    success: bool
-    nit: int
-    nfev: int
-    nlp: "_NLP"
-    source: str
-    delta: float = 0.0
-    lam_x: Optional[np.ndarray] = None
-
-
-class _NLP:
-    """A template bound to one problem and mesh: parameters and bounds."""
-
-    def __init__(self, sc: _Scaled, mesh, tol, max_iter, verbose, deadline=math.inf):
-        prob = sc.prob
-        N = int(mesh.shape[0])
-        self.sc, self.N, self.mesh = sc, N, np.asarray(mesh, float)
-        tpl = _template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tol),
-                        int(max_iter), bool(verbose), deadline)
-        self.tpl = tpl
-        self.nx = tpl.nx
-        self.iX, self.iXm, self.iU, self.iUm = tpl.iX, tpl.iXm, tpl.iU, tpl.iUm
-        # ---- parameters
-        P = np.zeros(tpl.n_par)
-        ip = tpl.i_par
-        P[ip["J"]:ip["J"] + 3] = sc.J
-        P[ip["U"]:ip["U"] + 3] = sc.U
-        if prob.is_pointing:
-            e1, e2 = perpendicular_basis(np.asarray(prob.sensor_target, float))
-            P[ip["tdat"]:ip["tdat"] + 9] = np.concatenate([e1, e2, prob.sensor_target])
-        else:
-            P[ip["tdat"]:ip["tdat"] + 4] = prob.qf
-        P[ip["sb"]:ip["sb"] + 3] = prob.sensor_axis
-        for c, cone in enumerate(prob.cones):
-            P[ip["cones"] + 4 * c:ip["cones"] + 4 * c + 3] = cone.axis
-            P[ip["cones"] + 4 * c + 3] = cone.half_angle
-        P[ip["mesh"]:ip["mesh"] + N] = self.mesh
-        self.P = P
-        # ---- bounds
-        lbx = np.full(tpl.nx, -np.inf)
-        ubx = np.full(tpl.nx, np.inf)
-        lbx[0] = 1e-6
-        for I in (self.iX, self.iXm):
-            lbx[I[:, 0:4]] = -1.5
-            ubx[I[:, 0:4]] = 1.5
-            if sc.rate is not None:
-                lbx[I[:, 4:7]] = -sc.rate
-                ubx[I[:, 4:7]] = sc.rate
-        # p-norm: the ball constraint bounds the controls; the boxes just keep them finite
-        ub_u = sc.U if math.isinf(sc.p) else 1.01 * sc.U
-        for I in (self.iU, self.iUm):
-            lbx[I] = -ub_u
-            ubx[I] = ub_u
-        lbx[self.iX[0]] = sc.x0
-        ubx[self.iX[0]] = sc.x0
-        lbx[self.iX[N, 4:7]] = sc.wf
-        ubx[self.iX[N, 4:7]] = sc.wf
-        self.lbx, self.ubx = lbx, ubx
-        lbg = np.full(tpl.ng, -np.inf)
-        ubg = np.zeros(tpl.ng)
-        lay = tpl.layout
-        for name in ("simpson", "hermite", "terminal"):
-            a, b = lay[name]
-            lbg[a:b] = 0.0
-        if "terminal_sign" in lay:
-            a, b = lay["terminal_sign"]
-            lbg[a:b] = 0.0
-            ubg[a:b] = np.inf
-        if "bernstein" in lay:
-            a, b = lay["bernstein"]
-            lbg[a:b] = -np.tile(sc.U, N)
-            ubg[a:b] = np.tile(sc.U, N)
-        if "rate_bernstein" in lay:
-            a, b = lay["rate_bernstein"]
-            lbg[a:b] = -np.tile(sc.rate, 2 * N)
-            ubg[a:b] = np.tile(sc.rate, 2 * N)
-        if "ball" in lay:
-            a, b = lay["ball"]
-            ubg[a:b] = 1.0
-        self.lbg, self.ubg = lbg, ubg
-        a, b = lay["simpson"]
-        self.ig_simpson = np.arange(a, b).reshape(N, 7)
-        a, b = lay["hermite"]
-        self.ig_hermite = np.arange(a, b).reshape(N, 7)
-        self.n_eq = tpl.n_eq
-
-    rate_scale = 1.0     # the rate limit of the NLP, relative to the problem's (back-off)
-
-    def with_rate_scale(self, scale) -> "_NLP":
-        """This NLP with the rate limit scaled by ``scale`` (< 1: a back-off)."""
-        other = copy.copy(self)
-        f = scale / self.rate_scale
-        other.lbx, other.ubx = self.lbx.copy(), self.ubx.copy()
-        other.lbg, other.ubg = self.lbg.copy(), self.ubg.copy()
-        for I in (self.iX, self.iXm):
-            w = I[:, 4:7]
-            # the fixed start and end rates (lb = ub) stay as they are; an unlimited axis's
-            # infinite bounds stay infinite (f > 0)
-            free = self.lbx[w] != self.ubx[w]
-            other.lbx[w] = np.where(free, self.lbx[w] * f, self.lbx[w])
-            other.ubx[w] = np.where(free, self.ubx[w] * f, self.ubx[w])
-        if "rate_bernstein" in self.tpl.layout:
-            a, b = self.tpl.layout["rate_bernstein"]
-            other.lbg[a:b] *= f
-            other.ubg[a:b] *= f
-        other.rate_scale = scale
-        return other
-
-    def params(self, delta):
-        P = self.P.copy()
-        P[self.tpl.i_par["delta"]] = delta
-        return P
-
-    def warm_ready(self, deadline) -> bool:
-        """Whether a warm start before ``deadline`` would use the warm-started solver: it is
-        built, or the time left pays for building it (else ``solve`` starts cold)."""
-        return (self.tpl._warm is not None
-                or deadline - time.perf_counter() > build_estimate(self.N, len(self.sc.prob.cones)))
-
-    def solve(self, w0, deadline, source, delta=0.0, warm: Optional["_Run"] = None) -> _Run:
-        """IPOPT from ``w0``; with ``warm`` (an answer of this NLP), from its primal-dual point."""
-        tpl = self.tpl
-        tpl.deadline.at = deadline
-        solver = tpl.solver
-        args = dict(x0=w0, p=self.params(delta), lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
-        # (the warm-started solver is built at its first use: not when the budget left cannot pay
-        # for it; the cold solver then starts from the same point)
-        if warm is not None and warm.lam_x is not None and self.warm_ready(deadline):
-            solver = tpl.warm_solver
-            args.update(x0=warm.w, lam_x0=warm.lam_x, lam_g0=warm.lam_g)
-        r = solver(**args)
-        st = solver.stats()
-        w = np.asarray(r["x"]).ravel()
-        status = str(st.get("return_status", "unknown"))
-        if status == "User_Requested_Stop" and time.perf_counter() > deadline:
-            status = "Maximum_WallTime_Exceeded"
-        nit = int(st.get("iter_count", 0))
-        nfev = int(st.get("n_call_nlp_g", nit + 1))
-        return _Run(float(w[0]), w, np.asarray(r["lam_g"]).ravel(), status,
-                    bool(st.get("success", False)) and status in CONVERGED_STATUSES, nit, nfev, self, source,
-                    delta, np.asarray(r["lam_x"]).ravel())
-
-    def g(self, w, delta=0.0):
-        return np.asarray(self.tpl.geval(w, self.params(delta))).ravel()
-
-    # ---- packing
-    def pack(self, T, X, Xm, U, Um):
-        w = np.empty(self.nx)
-        w[0] = T
-        w[self.iX] = X
-        w[self.iXm] = Xm
-        w[self.iU] = U
-        w[self.iUm] = Um
-        return w
-
-    def unpack(self, w):
-        w = np.asarray(w, dtype=float).ravel()
-        return float(w[0]), w[self.iX], w[self.iXm], w[self.iU], w[self.iUm]
-
-    def times(self, T):
-        """Node and midpoint times (nondimensional)."""
-        s = np.concatenate([[0.0], np.cumsum(self.mesh)])
-        s[-1] = 1.0
-        return s * T, 0.5 * (s[:-1] + s[1:]) * T
-
-
-# ----------------------------------------------------------------------------- guesses
-@dataclass
-class _TrajGuess:
-    """A guess as functions of time (nondimensional); sampled onto any grid."""
-    T: float
-    t: np.ndarray
-    q: np.ndarray
-    w: np.ndarray
-    u: np.ndarray
-    source: str
-
-    def sample(self, nlp: _NLP):
-        tk, tm = nlp.times(1.0)
-        tk = tk * self.T
-        tm = tm * self.T
-
-        def interp(arr, tt):
-            return np.stack([np.interp(tt, self.t, arr[:, i]) for i in range(arr.shape[1])], axis=-1)
-        X = np.hstack([interp(self.q, tk), interp(self.w, tk)])
-        Xm = np.hstack([interp(self.q, tm), interp(self.w, tm)])
-        X[0] = nlp.sc.x0
-        U = interp(self.u, tk)
-        Um = interp(self.u, tm)
-        return nlp.pack(self.T, X, Xm, U, Um)
-
-
-def _trapezoid_path(sc: _Scaled, q_start, q_end, source):
-    """Rest-to-rest rotation about the eigenaxis with the largest constant acceleration the
-    bound allows at rest (gyroscopic torque ignored), coasting at the rate limit if any."""
-    from .guesses import eigenaxis_acceleration
-    d = np.asarray(qmul(np.array([q_start[0], -q_start[1], -q_start[2], -q_start[3]]), q_end))
-    if d[0] < 0:
-        d = -d
-    v = float(np.linalg.norm(d[1:]))
-    n = d[1:] / v if v > 1e-15 else np.array([1.0, 0.0, 0.0])
-    th = 2.0 * math.atan2(v, d[0])
-    acc = eigenaxis_acceleration(sc.J, sc.U, sc.p, n)
-    wmax = math.inf if sc.rate is None else float(np.min(sc.rate[np.abs(n) > 1e-12] / np.abs(n[np.abs(n) > 1e-12])))
-    t1 = math.sqrt(max(th, 1e-12) / acc)
-    if acc * t1 > wmax:      # trapezoid: accelerate to wmax, coast, decelerate
-        t1 = wmax / acc
-        tc = (th - acc * t1 * t1) / wmax
-    else:
-        tc = 0.0
-    T = 2 * t1 + tc
-    t = np.linspace(0.0, T, 201)
-    a1, a2 = t1, t1 + tc
-    rate = np.where(t < a1, acc * t, np.where(t < a2, acc * t1, np.maximum(0.0, acc * (T - t))))
-    theta = np.where(t < a1, 0.5 * acc * t * t,
-                     np.where(t < a2, 0.5 * acc * t1 * t1 + acc * t1 * (t - a1),
-                              th - 0.5 * acc * np.maximum(0.0, T - t) ** 2))
-    ua = np.where(t < a1, acc, np.where(t < a2, 0.0, -acc))
-    q = _qexp_body(q_start, n, theta)
-    return _TrajGuess(T, t, q, rate[:, None] * n[None, :], ua[:, None] * (sc.J * n)[None, :], source)
-
-
-def _eigen_path(sc: _Scaled, q_start, q_end, source):
-    """Rest-to-rest eigenaxis slew q_start → q_end within the bounds, nondimensional: the
-    fastest one (``solvers.eigenaxis_slew``) for a per-axis bound; for a p-norm bound,
-    whose ``eigenaxis_slew`` is slow (a scalar minimisation per grid point), the
-    constant-acceleration trapezoid."""
-    from .eigenaxis import eigenaxis_slew
-    prob = sc.prob
-    if not math.isinf(sc.p):
-        return _trapezoid_path(sc, q_start, q_end, source)
-    sub = SlewProblem(prob.inertia, prob.torque_max, prob.torque_norm, q0=q_start, qf=q_end,
-                      rate_max=prob.rate_max)
-    es = eigenaxis_slew(sub, n_grid=400)
-    if es.tf <= 0.0:
-        t = np.array([0.0, 1.0])
-        q = np.array([q_start, q_start])
-        return _TrajGuess(1.0, t, q, np.zeros((2, 3)), np.zeros((2, 3)), source)
-    t = es.t / sc.tau
-    q = _qexp_body(q_start, es.axis, es.theta)
-    w = es.rate[:, None] * es.axis[None, :] * sc.tau
-    u = es.u / sc.umax0
-    return _TrajGuess(float(t[-1]), t, q, w, u, source)
-
-
-def _concat(a: _TrajGuess, b: _TrajGuess, source):
-    t = np.concatenate([a.t, a.T + b.t[1:]])
-    return _TrajGuess(a.T + b.T, t, np.vstack([a.q, b.q[1:]]), np.vstack([a.w, b.w[1:]]),
-                      np.vstack([a.u, b.u[1:]]), source)
-
-
-def _with_rates(sc: _Scaled, g: _TrajGuess):
-    """Blend the boundary rates into a rest-to-rest path guess (a guess only)."""
-    if not (np.any(sc.x0[4:7]) or np.any(sc.wf)):
-        return g
-    T = g.T
-    dw = sc.wf - sc.x0[4:7]
-    # time to change the rate at the available acceleration, as a floor on T
-    T_rate = float(np.max(np.abs(dw) * sc.J / sc.U))
-    if T < T_rate:
-        scale = T_rate / max(T, 1e-12)
-        g = _TrajGuess(T_rate, g.t * scale, g.q, g.w / scale, g.u / scale ** 2, g.source)
-        T = T_rate
-    s = g.t / T
-    w = g.w + (1.0 - s)[:, None] * sc.x0[4:7][None, :] + s[:, None] * sc.wf[None, :]
-    u = g.u + (dw * sc.J / T)[None, :]
-    return _TrajGuess(T, g.t, g.q, w, np.clip(u, -sc.U, sc.U), g.source + "+rates")
-
-
-def _final_attitude_guess(prob, q_from):
-    """Target attitude for a guess: ``qf``, or the shortest sensor rotation from ``q_from``."""
-    if prob.qf is not None:
-        qf = prob.qf.copy()
-        if float(qf @ q_from) < 0:
-            qf = -qf
-        return qf
-    s = np.asarray(qrotate(q_from, prob.sensor_axis))
-    r = np.asarray(qfrom_two_vectors(s, prob.sensor_target))
-    return np.asarray(qmul(r, q_from))
-
-
-def _path_min_margin(prob, q):
-    return float(margins(prob, q).min()) if prob.cones else math.inf
-
-
-def _detour_guesses(sc: _Scaled, straight: _TrajGuess, clearance=math.radians(5.0)):
-    """Around the worst-crossed cone, through a way-point just outside it (both sides)."""
-    prob = sc.prob
-    d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in straight.q])
-    worst, wk, wc = math.inf, 0, None
-    for c in prob.cones:
-        ang = np.arccos(np.clip(d @ c.axis, -1, 1)) - c.half_angle
-        k = int(np.argmin(ang))
-        if ang[k] < worst:
-            worst, wk, wc = float(ang[k]), k, c
-    if wc is None or worst >= 0.0:
-        return []
-    a = wc.axis
-    s0, s1 = prob.start_direction, prob.target_direction
-    # the deepest point of the straight path, pushed away from the cone axis (or, if it
-    # passes through the axis, sideways), and the opposite side of the cone
-    pm = d[wk] - (d[wk] @ a) * a
-    if np.linalg.norm(pm) < 1e-9:
-        pm = np.cross(a, s1 - s0)
-    pm /= np.linalg.norm(pm)
-    out = []
-    for side in (1.0, -1.0):
-        direction = pm if side > 0 else -pm
-        beta = wc.half_angle + clearance
-        wpt = math.cos(beta) * a + math.sin(beta) * direction
-        wpt /= np.linalg.norm(wpt)
-        qa = np.asarray(qmul(qfrom_two_vectors(s0, wpt), prob.q0))
-        leg1 = _eigen_path(sc, prob.q0, qa, "detour")
-        qb = _final_attitude_guess(prob, qa)
-        leg2 = _eigen_path(sc, qa, qb, "detour")
-        out.append(_concat(leg1, leg2, f"detour({'+' if side > 0 else '-'})"))
-    return out
-
-
-def _propagate_guess(sc: _Scaled, guess: Guess, n=400):
-    """A ``solvers.Guess`` as a trajectory: bang-bang from its switch times, else the
-    extremal of its costates (PMP control law), by fixed-step RK4 (compiled:
-    ``core.control_replay.guess_path``)."""
-    from .core import attitude_flow as af
-    from .core.control_replay import guess_path
-    T = guess.tf / sc.tau
-    t = np.linspace(0.0, T, n + 1)
-    by_switches = guess.switch_times is not None and guess.u_first is not None
-    if by_switches:
-        sw = [np.asarray(s, dtype=float).ravel() / sc.tau for s in guess.switch_times]
-        sw_t = np.concatenate(sw) if sum(x.size for x in sw) else np.zeros(0)
-        sw_axis = np.concatenate([np.full(x.size, i, dtype=np.int64) for i, x in enumerate(sw)])
-        u_first = np.asarray(guess.u_first, dtype=float)
-        u0 = np.where(u_first == 0, 1.0, u_first)
-        src = "guess(switch times)"
-    else:
-        sw_t, sw_axis, u0 = np.zeros(0), np.zeros(0, dtype=np.int64), np.ones(3)
-        src = "guess(costates)"
-    mode = af.MODE_BANG if math.isinf(sc.p) else af.MODE_PNORM
-    pp = 0.0 if math.isinf(sc.p) else float(sc.p)
-    y = np.concatenate([sc.x0, guess.costate0[:4] / sc.tau, guess.costate0[4:] / sc.tau ** 2]).astype(float)
-    Y, Uu = guess_path(y, t, np.asarray(sc.J, dtype=float), np.asarray(sc.U, dtype=float), mode, pp, sw_t,
-                       sw_axis, u0, bool(by_switches))
-    return _TrajGuess(T, t, Y[:, 0:4], Y[:, 4:7], Uu, src)
-
-
-def _solution_guess(sc: _Scaled, sol: SlewSolution):
-    if sol.t is None or len(sol.t) < 2 or not math.isfinite(sol.tf):
-        raise ValueError("guess: the given SlewSolution has no trajectory to start from")
-    t = np.asarray(sol.t) / sc.tau
-    return _TrajGuess(float(sol.tf) / sc.tau, t, np.asarray(sol.q), np.asarray(sol.omega) * sc.tau,
-                      np.asarray(sol.u) / sc.umax0, f"solution({sol.method or 'given'})")
-
-
-def _perturbed(sc: _Scaled, g: _TrajGuess, rng, amp=0.2):
-    """``g`` with a smooth random torque and rate perturbation (breaks the symmetry of an
-    eigenaxis guess about a principal axis, which IPOPT would otherwise never leave)."""
-    s = g.t / g.T
-    du = np.zeros_like(g.u)
-    for i in range(3):
-        c = rng.normal(size=3)
-        du[:, i] = sum(c[j] * np.sin((j + 1) * np.pi * s) for j in range(3))
-    du *= amp * sc.U / max(1.0, float(np.max(np.abs(du))))
-    # rates: the integral of the torque perturbation, brought back to zero at the end
-    dt = np.diff(g.t)
-    dw = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (du[1:] + du[:-1]) * dt[:, None], axis=0)]) / sc.J
-    dw -= s[:, None] * dw[-1][None, :]
-    u = g.u + du
-    if math.isinf(sc.p):
-        u = np.clip(u, -sc.U, sc.U)
-    return _TrajGuess(g.T, g.t, g.q, g.w + dw, u, g.source + "+perturbed")
-
-
-def initial_guesses(sc: _Scaled, guess=None, n_starts=None, seed=0, extra_starts=()) -> List[_TrajGuess]:
-    """The starts: the given guess or the eigenaxis guess, seeded perturbations of it up to
-    ``n_starts`` (default 4 without a guess, 1 with one), then cone detours when the
-    eigenaxis path crosses a cone, then ``extra_starts`` (``solvers.Guess``es, propagated)."""
-    prob = sc.prob
-    if isinstance(guess, SlewSolution):
-        base, n_default = _solution_guess(sc, guess), 1
-    elif isinstance(guess, Guess):
-        base, n_default = _propagate_guess(sc, guess), 1
-    else:
-        qf = _final_attitude_guess(prob, prob.q0)
-        base, n_default = _with_rates(sc, _eigen_path(sc, prob.q0, qf, "eigenaxis")), 4
-    n = n_default if n_starts is None else int(n_starts)
-    out = [base]
-    rng = np.random.default_rng(seed)
-    amps = (0.2, 0.5)
-    while len(out) < n:
-        out.append(_perturbed(sc, base, rng, amps[(len(out) - 1) % 2]))
-    if guess is None and prob.cones and _path_min_margin(prob, base.q) < 0.0:
-        out += [_with_rates(sc, g) for g in _detour_guesses(sc, base)]
-        if _through_a_cone_axis(prob, base.q) and len(out) > 1:
-            # the straight path runs (nearly) through a cone's axis: which way round is a
-            # tie that holds IPOPT (measured: 200+ iterations without convergence); the
-            # perturbed copies and the detours break it
-            out = out[1:]
-    for g in extra_starts or ():
-        try:
-            tg = _propagate_guess(sc, g)
-        except (ValueError, FloatingPointError, ArithmeticError):
-            continue        # a start that cannot be propagated is no start (the others run)
-        if not (np.all(np.isfinite(tg.q)) and np.all(np.isfinite(tg.w)) and np.isfinite(tg.T) and tg.T > 0):
-            continue
-        tg.source = f"{g.source} (propagated)"
-        out.append(tg)
-    return out
-
-
-def _through_a_cone_axis(prob, q):
-    d = np.array([qrotate(qi / np.linalg.norm(qi), prob.sensor_axis) for qi in q])
-    for c in prob.cones:
-        if float(np.min(np.arccos(np.clip(d @ c.axis, -1, 1)))) < 0.25 * c.half_angle:
-            return True
-    return False
-
-
 # ----------------------------------------------------------------------------- post-processing
-def _interp_control(U, Um, tk, sc: _Scaled):
+def _interp_control(U, Um, tk, sc: collocation_nlp.Scaled):
     """The collocation control model, ``u(t)``: on each interval the quadratic through the
     node, midpoint and node controls. The Bernstein constraint keeps it within the bound;
     it is clipped anyway (by at most IPOPT's bound relaxation, ~1e-8)."""
@@ -1114,7 +262,7 @@ def load_replay_kernels() -> None:
     state_rhs(x0, U[0], J)
 
 
-def _replay(sc: _Scaled, run: _Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
+def _replay(sc: collocation_nlp.Scaled, run: collocation_nlp.Run, samples=_SAMPLES_PER_INTERVAL) -> _Replay:
     """Independent re-propagation of the interpolated control from the start state: RK4,
     ``samples`` steps an interval, where the control is smooth (``core.control_replay``;
     it agrees with scipy's DOP853 at rtol 1e-10 to ~3e-11)."""
@@ -1155,7 +303,7 @@ def _switches(t, u, U):
     return sw, first
 
 
-def _costates(run: _Run):
+def _costates(run: collocation_nlp.Run):
     """Covector mapping: costates (nondimensional, CONVENTIONS sign, unscaled) at the
     nodes and midpoints, from the defect multipliers."""
     nlp = run.nlp
@@ -1195,7 +343,7 @@ def _tf_tol(T, tau, Tc, miss_tol):
     return max(abs(T - Tc) * tau, T * tau * 1e-10) if math.isfinite(Tc) else miss_tol
 
 
-def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
+def _post(sc: collocation_nlp.Scaled, run: collocation_nlp.Run, Tc, tols, rep: _Replay):
     """SlewSolution fields and the verification checks of a solved run."""
     prob = sc.prob
     nlp = run.nlp
@@ -1282,7 +430,7 @@ def _post(sc: _Scaled, run: _Run, Tc, tols, rep: _Replay):
 
 
 # ----------------------------------------------------------------------------- the solver
-def _regrid(run: _Run, nlp_new: _NLP):
+def _regrid(run: collocation_nlp.Run, nlp_new: collocation_nlp.NLP):
     """Interpolate a solved run onto another mesh (a warm start)."""
     T, X, Xm, U, Um = run.nlp.unpack(run.w)
     tk, tm = run.nlp.times(T)
@@ -1290,7 +438,7 @@ def _regrid(run: _Run, nlp_new: _NLP):
     o = np.argsort(t, kind="stable")
     xs = np.vstack([X, Xm])[o]
     us = np.vstack([U, Um])[o]
-    return _TrajGuess(T, t[o], xs[:, 0:4], xs[:, 4:7], us, run.source).sample(nlp_new)
+    return collocation_guesses.TrajGuess(T, t[o], xs[:, 0:4], xs[:, 4:7], us, run.source).sample(nlp_new)
 
 
 def _coarse_mesh(mesh, Nc):
@@ -1376,7 +524,7 @@ def _back_off(sc, best, rep, deadline, failures, solve_round, excess, rounds=4):
     return best, rep, nit, nfev
 
 
-def _interior_clearance(prob, rep: _Replay, run: _Run, tau):
+def _interior_clearance(prob, rep: _Replay, run: collocation_nlp.Run, tau):
     """Certified smallest margin of the re-propagated path away from the first and last
     interval (there the start and the target fix the path; a back-off cannot help)."""
     tk, _ = run.nlp.times(run.T)
@@ -1393,6 +541,7 @@ def _interior_clearance(prob, rep: _Replay, run: _Run, tau):
 # time 0.80 s, 0.79 s, 1.87 s (benchmarks/RESULTS.md).
 DEFAULT_INTERVALS = 60
 DEFAULT_INTERVALS_CONES = 80
+
 # the starts' grid, with keep-out cones: N / 8 intervals (10 for the default 80), not N / 2. It
 # picks the basin, and with fewer cone points IPOPT reaches the better ones more often: on 300
 # seeded pointing-cones problems, against the best of N/2, N/4 and N/8, the mean tf gap was
@@ -1401,8 +550,6 @@ DEFAULT_INTERVALS_CONES = 80
 # seed, after the choice: 4.7e-3, 1.3e-3, 1.3e-3 and 9, 7, 4; exact extremals 126, 123, 120 (most
 # of those lost are faster answers riding a cone)
 COARSE_DIVISOR_CONES = 8
-
-
 MAX_INTERVALS = 5000     # about 80,000 NLP variables; 10**6 exhausted memory in CasADi
 
 
@@ -1623,12 +770,12 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=Tru
         n_intervals = DEFAULT_INTERVALS_CONES if prob.cones else DEFAULT_INTERVALS
     N = _check_intervals(n_intervals)
     Nc, N_half = _grids(N, bool(prob.cones), coarse)
-    sc = _Scaled.of(prob)
+    sc = collocation_nlp.Scaled.of(prob)
     coarse_tol, coarse_iter = max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER)
     t0 = time.perf_counter()
     for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
         if n is not None:
-            tpl = _template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl),
+            tpl = collocation_nlp._template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl),
                             int(mi), bool(verbose))
             if n == N and (prob.cones or sc.rate is not None):
                 tpl.warm_solver     # the back-off rounds start from the answer's primal-dual point
@@ -1682,10 +829,10 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
         raise ValueError(("qf" if prob.qf is not None else "sensor_target")
                          + ": the target equals the start (zero slew at rest); nothing to solve")
-    check_cones_passable(prob)
-    sc = _Scaled.of(prob)
+    cone_passability.check_cones_passable(prob)
+    sc = collocation_nlp.Scaled.of(prob)
     deadline = t_start + float(time_budget)
-    starts = initial_guesses(sc, guess, n_starts, seed, extra_starts)
+    starts = collocation_guesses.initial_guesses(sc, guess, n_starts, seed, extra_starts)
 
     nit = nfev = 0
     failures = []
@@ -1694,9 +841,9 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     # ---- stage 1: every start (on the coarse grid when there is one)
     common = dict(method="collocation", problem=prob, n_candidates=0)
     try:
-        nlp1 = _NLP(sc, _coarse_mesh(mesh_arr, Nc) if Nc else mesh_arr, max(tol, 1e-7) if Nc else tol,
+        nlp1 = collocation_nlp.NLP(sc, _coarse_mesh(mesh_arr, Nc) if Nc else mesh_arr, max(tol, 1e-7) if Nc else tol,
                     min(max_iter, _COARSE_MAX_ITER) if Nc else max_iter, verbose, deadline)
-    except NoTimeToBuild as e:
+    except collocation_nlp.NoTimeToBuild as e:
         return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, f"{STATUS_MESSAGES[STATUS_BUDGET_EXHAUSTED]} No start was "
                             f"solved: {e}.", nit=0, nfev=0, wall_time=time.perf_counter() - t_start,
                             route="Hermite–Simpson: no time to build the NLP", **common)
@@ -1722,8 +869,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     finals = []      # (run, coarse T)
     if Nc:
         try:
-            nlp = _NLP(sc, mesh_arr, tol, max_iter, verbose, deadline)
-        except NoTimeToBuild as e:
+            nlp = collocation_nlp.NLP(sc, mesh_arr, tol, max_iter, verbose, deadline)
+        except collocation_nlp.NoTimeToBuild as e:
             nlp, budget_hit = None, True
             failures.append(str(e))
         chosen = []
@@ -1815,9 +962,9 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         if not (run.success and time.perf_counter() < dl):
             return math.nan, 0, 0
         try:
-            nlp_cmp = nlp1 if N_half is None else _NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
+            nlp_cmp = nlp1 if N_half is None else collocation_nlp.NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
                                                        min(max_iter, _COARSE_MAX_ITER), verbose, dl)
-        except NoTimeToBuild:
+        except collocation_nlp.NoTimeToBuild:
             return math.nan, 0, 0
         r2 = nlp_cmp.solve(_regrid(run, nlp_cmp), dl, run.source, delta=run.delta)
         # (an N / 2 answer in another basin says nothing of this one's accuracy)

@@ -14,11 +14,11 @@ import solvers
 from slew_env import Cone, SlewProblem
 from slew_env.core import quat_from_euler321_deg
 from slew_env.core.dynamics import state_rhs
-from solvers.collocation import (DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, _caps_cannot_separate,
-                                 _grid_separates,                                  cones_block_every_path,
-                                 solve_collocation)
+from solvers.collocation import DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, solve_collocation
+from solvers.cone_passability import _caps_cannot_separate, _grid_separates, cones_block_every_path
 from solvers.guesses import Guess
 from reference_cases import melton
+from solvers import cone_passability
 
 R3_QF = quat_from_euler321_deg(-20.0, 10.0, 90.0)
 R3_TF_PER_AXIS = 2.3540178          # indirect (REFERENCE_CASES R3)
@@ -261,13 +261,13 @@ def test_cones_that_block_every_path(monkeypatch):
         solve_collocation(p)
     # solve says so before it loads anything or starts its clock, whatever the method; the grid
     # test's answer is remembered
-    from solvers import api, collocation, solve
+    from solvers import api, solve
     for method in ("auto", "indirect", "collocation"):
         with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate the start and target"):
             solve(p, method=method, time_budget=1e-3)
-    assert True in collocation._SEPARATION.values()
+    assert True in cone_passability._SEPARATION.values()
     monkeypatch.setattr(api, "ensure_kernels", lambda prob: pytest.fail("loaded kernels first"))
-    monkeypatch.setattr(collocation, "_grid_separates", lambda *a: pytest.fail("the grid test again"))
+    monkeypatch.setattr(cone_passability, "_grid_separates", lambda *a: pytest.fail("the grid test again"))
     with pytest.raises(ValueError, match=r"^cones: the 6 keep-out cone\(s\) separate"):
         solve(p)
     # the same belt with 2° gaps is passable

@@ -122,7 +122,7 @@ def test_the_compiled_bang_bang_replay_is_the_python_loop_bit_for_bit():
 
 
 def _python_propagate_guess(sc, guess, n=400):
-    """``solvers.collocation._propagate_guess`` as it ran before it was compiled (reference)."""
+    """``solvers.collocation_guesses.propagate_guess`` as it ran before it was compiled (reference)."""
     from solvers.core import attitude_flow as af
     T = guess.tf / sc.tau
     prob = sc.prob
@@ -170,12 +170,13 @@ def test_the_compiled_guess_path_is_the_python_loop(p_norm):
     from slew_env import SlewProblem
     from slew_env.core import qfrom_uniform
     from solvers import Guess
-    from solvers.collocation import _propagate_guess, _Scaled
+    from solvers.collocation_guesses import propagate_guess
+    from solvers.collocation_nlp import Scaled
     rng = np.random.default_rng(12)
     for k in range(6):
         prob = SlewProblem(rng.uniform(0.3, 1.0, 3) * 7.0, torque_max=rng.uniform(0.2, 2.0, 3), torque_norm=p_norm,
                            q0=qfrom_uniform(*rng.random(3)), qf=qfrom_uniform(*rng.random(3)))
-        sc = _Scaled.of(prob)
+        sc = Scaled.of(prob)
         c0 = rng.normal(size=7)
         tf = float(rng.uniform(1.0, 6.0)) * sc.tau
         if k % 2 and math.isinf(p_norm):
@@ -183,7 +184,7 @@ def test_the_compiled_guess_path_is_the_python_loop(p_norm):
             g = Guess(c0, tf, sw, np.array(rng.choice([-1.0, 1.0], 3)))
         else:
             g = Guess(c0, tf)
-        new = _propagate_guess(sc, g, n=int(rng.choice([7, 400])))
+        new = propagate_guess(sc, g, n=int(rng.choice([7, 400])))
         T, t, Y, Uu = _python_propagate_guess(sc, g, n=new.t.size - 1)
         assert new.T == T and np.array_equal(new.t, t)
         assert np.allclose(new.q, Y[:, 0:4], rtol=0, atol=1e-12) and np.allclose(new.w, Y[:, 4:7], rtol=0, atol=1e-11)

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from slew_env import SlewProblem
-from solvers import solve, cone_routes
+from solvers import solve, cone_routes, collocation_nlp
 from solvers.cone_routes import rel_tol
 from solvers.collocation import settle_tf_tol, solve_collocation
 from reference_cases import TOUCH
@@ -101,9 +101,8 @@ def test_a_comparison_that_gives_nothing_in_time_is_said_too():
     """The N / 2 comparison returns at once with nothing (here: its NLP is not built and the budget
     cannot pay for building it): the tolerance is the replay's estimate, and the message says so,
     although the budget had not run out."""
-    from solvers import collocation
     sol = solve_collocation(TOUCH, defer_tf_tol=True)
-    for key in [k for k in collocation._CACHE if k[0] == 40 and k[2] == len(TOUCH.cones)]:
-        del collocation._CACHE[key]
+    for key in [k for k in collocation_nlp._CACHE if k[0] == 40 and k[2] == len(TOUCH.cones)]:
+        del collocation_nlp._CACHE[key]
     settle_tf_tol(sol, 0.05)
     assert math.isfinite(sol.tf_tol) and "boundary-miss estimate" in sol.message

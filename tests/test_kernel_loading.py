@@ -185,10 +185,10 @@ def test_a_representative_solve_that_raises_does_not_fail_the_users_solve(monkey
 def test_load_kernels_builds_a_cone_problems_nlps_too():
     """At start-up, ``load_kernels`` also builds the collocation NLPs of a pointing or cone
     problem's default mesh and cone count, which the first solve would otherwise build."""
-    from solvers import collocation
+    from solvers import collocation_nlp
     cones = [{"axis": a, "half_angle": 0.15} for a in ([1, 0, 0], [0, 1, 0], [0, 0, 1], [0.6, 0.8, 0.0])]
     p = SlewProblem([1.0, 0.8, 0.6], sensor_target=[0.3, 0.5, 0.81], sensor_axis=[0.6, 0.0, 0.8], cones=cones)
-    built = lambda: {k[0] for k in collocation._CACHE if k[1] and k[2] == 4}     # noqa: E731
+    built = lambda: {k[0] for k in collocation_nlp._CACHE if k[1] and k[2] == 4}     # noqa: E731
     assert not built() & {10, 80, 40}
     solvers.load_kernels([p])
     assert {10, 80, 40} <= built()

@@ -8,7 +8,7 @@ import pytest
 from slew_env import SlewProblem
 from slew_env.core.dynamics import propagate
 from slew_env.core.quaternion import qconj, qmul, qrotate
-from solvers import solve, auto_route
+from solvers import solve, auto_route, collocation_guesses, collocation_nlp
 from solvers.attitude_bvp import AttitudeBVP
 
 TARGET = np.array([0.2, -0.6, 0.77])
@@ -146,16 +146,15 @@ def test_the_nearest_cone_solutions_join_collocations_starts():
 
 
 def test_an_extra_start_that_cannot_be_propagated_is_skipped(monkeypatch):
-    import solvers.collocation as C
     from solvers import Guess
     from slew_env import TaskDistribution
     p = TaskDistribution.family("pointing-cones").sample(np.random.default_rng([0, 65]))
-    sc = C._Scaled.of(p)
+    sc = collocation_nlp.Scaled.of(p)
     g = Guess(np.array([0.0, 0.3, -0.2, 0.1, 0.5, -0.4, 0.2]), 2.0, source="bad")
-    n0 = len(C.initial_guesses(sc))
-    assert len(C.initial_guesses(sc, extra_starts=[g])) == n0 + 1
-    monkeypatch.setattr(C, "_propagate_guess", lambda sc, g: (_ for _ in ()).throw(FloatingPointError("overflow")))
-    assert len(C.initial_guesses(sc, extra_starts=[g])) == n0
+    n0 = len(collocation_guesses.initial_guesses(sc))
+    assert len(collocation_guesses.initial_guesses(sc, extra_starts=[g])) == n0 + 1
+    monkeypatch.setattr(collocation_guesses, "propagate_guess", lambda sc, g: (_ for _ in ()).throw(FloatingPointError("overflow")))
+    assert len(collocation_guesses.initial_guesses(sc, extra_starts=[g])) == n0
 
 
 def test_extra_starts_must_be_guesses():

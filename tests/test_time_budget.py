@@ -11,7 +11,7 @@ import pytest
 
 import solvers
 from slew_env import SlewProblem
-from solvers import api, auto_route, cone_routes, multistart, stage_budget, warm_routes
+from solvers import api, auto_route, cone_routes, multistart, stage_budget, warm_routes, collocation_guesses, collocation_nlp
 from solvers.collocation import solve_collocation
 from solvers.solution import STATUS_BUDGET_EXHAUSTED, STATUS_SUCCESS
 from reference_cases import TOUCH
@@ -168,20 +168,19 @@ def test_no_cone_free_route_once_the_budget_is_spent(monkeypatch):
 def test_no_nlp_is_built_that_the_budget_cannot_pay_for():
     """Building an NLP (CasADi) is not interruptible: one not yet built in the process is not
     started when the budget left is shorter than its estimated build time."""
-    from solvers import collocation
     prob = FULL.replace(cones=[{"axis": [0.0, 0.0, 1.0], "half_angle": 0.2}] * 2, q0=[1, 0, 0, 0])
     key_n = 37       # a mesh no other test uses: its NLP is not in the cache
-    assert collocation.build_estimate(key_n, 2) > 0.1
+    assert collocation_nlp.build_estimate(key_n, 2) > 0.1
     t0 = time.perf_counter()
     sol = solve_collocation(prob, n_intervals=key_n, coarse=False, time_budget=0.05)
     assert time.perf_counter() - t0 < 0.05 + 0.05
     assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
     assert sol.route == "Hermite–Simpson: no time to build the NLP"
     assert "N=37" in sol.message and "2 cone(s)" in sol.message
-    assert not any(k[0] == key_n for k in collocation._CACHE)
+    assert not any(k[0] == key_n for k in collocation_nlp._CACHE)
     # with the time, the same NLP is built and solved
     assert solve_collocation(prob, n_intervals=key_n, coarse=False, time_budget=60.0).success
-    assert any(k[0] == key_n for k in collocation._CACHE)
+    assert any(k[0] == key_n for k in collocation_nlp._CACHE)
 
 
 def test_solve_builds_the_nlps_of_the_mesh_it_is_given_before_its_clock():
@@ -191,10 +190,10 @@ def test_solve_builds_the_nlps_of_the_mesh_it_is_given_before_its_clock():
     from solvers import collocation
     prob = TOUCH.replace(cones=list(TOUCH.cones)[:2])
     assert collocation.prebuild_nlps(prob, 44) >= 0.0
-    sizes = {k[0] for k in collocation._CACHE if k[2] == 2 and k[1]}
+    sizes = {k[0] for k in collocation_nlp._CACHE if k[2] == 2 and k[1]}
     assert {10, 44, 22} <= sizes
     sol = solvers.solve(prob, time_budget=30.0, collocation={"n_intervals": 46})
-    assert {10, 46, 23} <= {k[0] for k in collocation._CACHE if k[2] == 2 and k[1]}
+    assert {10, 46, 23} <= {k[0] for k in collocation_nlp._CACHE if k[2] == 2 and k[1]}
     assert sol.success
 
 
@@ -203,7 +202,6 @@ def test_routes_that_begin_with_collocation_have_their_nlps_built_before_the_clo
     with collocation: its NLPs are built before the clock, as for pointing and cone problems.
     A problem the shipped model covers, a p-norm bound with p ≤ 2 (indirect first) and the
     indirect method do not build them."""
-    from solvers import collocation
     full = SlewProblem(inertia=[1.0, 0.8, 0.6], torque_max=1.0, q0=[1, 0, 0, 0],
                        qf=[math.cos(0.6), math.sin(0.6) * 0.6, math.sin(0.6) * 0.8, 0.0])
     rated = full.replace(rate_max=0.5)
@@ -242,8 +240,8 @@ def test_routes_that_begin_with_collocation_have_their_nlps_built_before_the_clo
     # for real: the mesh given is built, the rate-limited structure's warm-started solver too
     monkeypatch.undo()
     sol = solvers.solve(rated, collocation={"n_intervals": 43}, time_budget=20.0)
-    keys = [k for k in collocation._CACHE if k[0] == 43 and k[4] and not k[1]]
-    assert keys and collocation._CACHE[keys[0]]._warm is not None
+    keys = [k for k in collocation_nlp._CACHE if k[0] == 43 and k[4] and not k[1]]
+    assert keys and collocation_nlp._CACHE[keys[0]]._warm is not None
     assert sol.kernel_load_time > 0.0 and sol.success
 
 
@@ -251,10 +249,9 @@ def test_the_warm_started_solver_is_not_built_without_the_time_for_it():
     """A back-off round re-solves an answer warm-started; that IPOPT solver is built at its first
     use (0.1-1.3 s, not interruptible): not when the budget left cannot pay for it (the cold
     solver then runs from the same point), and built when it can."""
-    from solvers import collocation as col
-    sc = col._Scaled.of(TOUCH)
-    nlp = col._NLP(sc, np.full(12, 1.0 / 12), 1e-7, 200, False)    # a mesh no other test uses
-    g = col.initial_guesses(sc)[0]
+    sc = collocation_nlp.Scaled.of(TOUCH)
+    nlp = collocation_nlp.NLP(sc, np.full(12, 1.0 / 12), 1e-7, 200, False)    # a mesh no other test uses
+    g = collocation_guesses.initial_guesses(sc)[0]
     run = nlp.solve(g.sample(nlp), time.perf_counter() + 30.0, g.source)
     assert run.lam_x is not None and nlp.tpl._warm is None
     nlp.solve(run.w, time.perf_counter() + 1e-3, run.source, warm=run)
