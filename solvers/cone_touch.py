@@ -703,9 +703,9 @@ def _verify(tp, x, problem, source, reference, tols, pieces=None):
     z, T, tc, nu = tp.unpack(x)
     if pieces is None:
         R, _, pieces = tp.segments(x, want_jac=False)
-    else:
-        R = True
-    path = _event_driven_path(bvp, pieces, record=4000, hmax=T / 1000) if R is not None else None
+        if R is None:       # the flow through the touches failed
+            pieces = None
+    path = _event_driven_path(bvp, pieces, record=4000, hmax=T / 1000) if pieces is not None else None
     if path is None:
         return _fail(problem, "the converged touch extremal could not be propagated for its verification",
                      time.perf_counter())
