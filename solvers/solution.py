@@ -38,6 +38,31 @@ def bang_bang_control(switch_times, u_first, torque_max):
     return control
 
 
+# how the returned control is defined (``SlewSolution.control_law``; README, 'Solution format')
+CONTROL_LAWS = {
+    "bang-bang": "±torque_max per axis, the sign u_first on the first arc, flipping at each of switch_times",
+    "costate": "the closed-form p-norm law of the costates, propagated with the state from costate0",
+    "quadratic-samples": "on each interval [t[2k], t[2k+2]], the quadratic through u at t[2k], t[2k+1], t[2k+2]",
+    "linear-samples": "linear in t between the samples t, u",
+}
+# the laws that the samples define: a record without its dense samples keeps t and u for these
+SAMPLE_LAWS = ("quadratic-samples", "linear-samples")
+
+
+def control_law(method, verification, torque_norm) -> str:
+    """The rule of ``SlewSolution.control_law`` (``CONTROL_LAWS``), for a solution or its JSON
+    record: collocation's control is its quadratic model, a penalised cone answer's and the
+    eigenaxis slew's are their samples, and an indirect or switch-time answer's is bang-bang per
+    axis or, for a p-norm bound, its costates'."""
+    if method == "collocation":
+        return "quadratic-samples"
+    if method == "eigenaxis" or "regularisation" in (verification or {}):
+        return "linear-samples"
+    if method in ("indirect", "multiple-shooting", "switch-time"):
+        return "bang-bang" if math.isinf(float(torque_norm)) else "costate"
+    return ""
+
+
 def is_exact(success, method, verification) -> bool:
     """The rule of ``SlewSolution.exact``, for a solution or its JSON record: verified, from an
     indirect route, and not the penalised extremal of the cone route."""
@@ -55,7 +80,8 @@ class SlewSolution:
     in the gauge ``λq(0)·q(0) = 0`` and the scale ``H ≡ -1``; ``switch_times`` (3 arrays,
     bang-bang only; empty for a p-norm bound and for the smooth control of a penalised cone
     answer, whose ``costate0`` is at the scale ``λ0 = 1``); ``u_first`` (sign of each axis's first arc);
-    dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``;
+    dense samples ``t, q, omega, u, costate`` (``costate`` is (n, 7)); ``control(t)``, and
+    ``control_law`` (how a record defines that control: ``CONTROL_LAWS``);
     ``method``, ``route`` (how the answer was reached), ``guess`` (which guess won);
     ``n_candidates`` tried and ``candidates_tf`` (final times of all converged
     candidates, the local optima seen); ``baseline_tf`` (the eigenaxis slew's time, for
@@ -115,6 +141,14 @@ class SlewSolution:
         return is_exact(bool(self.success), self.method, self.verification)
 
     @property
+    def control_law(self) -> str:
+        """How the returned control is defined, for a replay from the record alone: a key of
+        ``CONTROL_LAWS`` (``""`` where there is no trajectory)."""
+        if self.problem is None or len(self.t) == 0:
+            return ""
+        return control_law(self.method, self.verification, self.problem.torque_norm)
+
+    @property
     def n_switches(self) -> int:
         return int(sum(len(s) for s in self.switch_times))
 
@@ -128,7 +162,9 @@ class SlewSolution:
         return "\n".join(lines)
 
     def to_dict(self, dense=True) -> dict:
-        """JSON-ready dict (see README, 'Solution format')."""
+        """JSON-ready dict (see README, 'Solution format'). ``dense=False`` leaves out the dense
+        samples ``t, q, omega, u, costate``, except ``t`` and ``u`` where they define the control
+        (``control_law`` in ``SAMPLE_LAWS``: collocation, penalised and eigenaxis answers)."""
         def clean(x):
             if isinstance(x, dict):
                 return {k: clean(v) for k, v in x.items()}
@@ -150,7 +186,7 @@ class SlewSolution:
             "u_first": self.u_first, "nit": self.nit, "nfev": self.nfev,
             "wall_time_s": self.wall_time, "kernel_load_time_s": self.kernel_load_time, "method": self.method, "route": self.route,
             "guess": self.guess, "n_candidates": self.n_candidates,
-            "candidates_tf": self.candidates_tf, "baseline_tf": self.baseline_tf,
+            "candidates_tf": self.candidates_tf, "baseline_tf": self.baseline_tf, "control_law": self.control_law,
             "verification": self.verification, "warm_start": self.warm_start,
         }
         if self.problem is not None:
@@ -161,6 +197,11 @@ class SlewSolution:
             d["omega"] = self.omega
             d["u"] = self.u
             d["costate"] = self.costate
+        elif d["control_law"] in SAMPLE_LAWS:
+            # the samples are the control here (its switch times are not): without them the
+            # record could not be flown
+            d["t"] = self.t
+            d["u"] = self.u
         return clean(d)
 
     def to_json(self, dense=True, **kw) -> str:

@@ -12,7 +12,7 @@ from typing import Optional, Tuple
 from .attitude_bvp import AttitudeBVP
 from .guesses import Guess
 from .eigenaxis import eigenaxis_time
-from .eigenaxis_answer import eigenaxis_inapplicable
+from .eigenaxis_answer import GRID_MARGIN, eigenaxis_inapplicable
 from .solution import SlewSolution
 from .verify import make_check
 from . import auto_route, cone_routes, multistart, stage_budget
@@ -29,11 +29,6 @@ CHALLENGE_MIN_BUDGET = 1.0   # s: the collocation route takes 0.3-1 s; with less
 # answer's sequence is a KKT point, the exact solver from its KKT costates (its own budget)
 SINGULAR_TABLE_BUDGET = 0.3
 SINGULAR_KKT_BUDGET = 0.1
-
-# relative margin below the grid eigenaxis time (n_grid = 1000) under which an answer is faster
-# than the eigenaxis slew without planning that slew: on 1,200 problems the grid time was at most
-# 1.8e-5 above the slew's (``eigenaxis_answer``)
-EIGENAXIS_GRID_MARGIN = 1e-3
 
 # SLSQP iterations on each of the nearest singular answers' sequences; the fastest verified answer
 # is kept. On the 101 singular held-out problems the table routes (the learned guess failed, ≥ 60 %
@@ -471,12 +466,12 @@ def no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
 def _eigenaxis_unless_faster(prob, tf):
     """``(baseline, eig)`` for a rest-to-rest, full-attitude, per-axis problem and a final time
     ``tf``: if ``tf`` is below the fine-grid eigenaxis time (problem units) by the margin
-    ``EIGENAXIS_GRID_MARGIN``, it is faster than the eigenaxis slew, and ``(grid time, None)``;
+    ``eigenaxis_answer.GRID_MARGIN``, it is faster than the eigenaxis slew, and ``(grid time, None)``;
     else the slew itself is planned (~15 ms): ``(grid time, eigenaxis_answer)``."""
     from .eigenaxis_answer import eigenaxis_answer
     bvp = AttitudeBVP(prob)
     grid = eigenaxis_time(bvp.ref_problem, n_grid=1000)
-    if tf < grid * (1.0 - EIGENAXIS_GRID_MARGIN):
+    if tf < grid * (1.0 - GRID_MARGIN):
         return grid, None
     return grid, eigenaxis_answer(prob)
 

@@ -9,8 +9,8 @@ Single problem::
 prints a short summary and, with ``-o``, writes the solution JSON
 (``SlewSolution.to_dict``: success, status, message, tf, costate0, switch_times,
 u_first, nit, nfev, wall_time_s, kernel_load_time_s, method, route, guess, n_candidates, candidates_tf,
-verification, problem, and the dense samples t, q, omega, u, costate unless
-``--no-dense``). ``-o -`` writes the JSON to stdout (the summary then goes to stderr).
+control_law, verification, problem, and the dense samples t, q, omega, u, costate unless
+``--no-dense``, which keeps t and u only where they are the control: README, 'Solution format'). ``-o -`` writes the JSON to stdout (the summary then goes to stderr).
 Exit code: 0 on success, 1 when the solver reports ``success=False`` (the solution is
 still written), 2 on bad input. ``--time-budget S`` holds for the whole solve; with
 ``--fallback eigenaxis`` a rest-to-rest full-attitude problem without cones that gets no
