@@ -24,7 +24,7 @@ Methods:
   be certified (a singular arc, a path riding a cone), a bang-bang slew with optimised switch
   times (``solvers.switch_time_opt``, ``solvers.switch_time_cones``), else the collocation
   answer itself; the classical indirect multi-start if collocation fails (see
-  ``_solve_auto``). ``route`` records the path taken.
+  ``auto_route.solve_auto``). ``route`` records the path taken.
 
 Defaults of the indirect multi-start: per-axis 16 candidates at most and at least 8 before
 stopping early, p-norm 8 and 3; a 20 s time budget. See ``solve``.
@@ -38,7 +38,7 @@ It stops when ``max_candidates`` have been tried; or, once ``min_candidates`` ha
 been tried, when ``enough`` have converged and the best final time was reached by at
 least two of them; or when the ``time_budget`` runs out. After the first verified extremal
 reached along a built-in candidate's smoothing path, each later per-axis candidate's attempt
-stops at ``candidate_cap`` (``CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
+stops at ``candidate_cap`` (``multistart.CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
 how many it tried. A multi-start is no proof of global optimality: on random problems the
 collocation-first route of ``"auto"`` found a faster extremal than the classical multi-start
 in about 1 case in 13.
@@ -55,7 +55,7 @@ from .deadline import propagation_deadline
 from .blas_threads import single_threaded_blas
 from .kernel_loading import ensure_kernels
 from .guesses import Guess
-from .eigenaxis_answer import eigenaxis_inapplicable
+from .eigenaxis_answer import N_GRID, eigenaxis_answer, eigenaxis_inapplicable, no_slower_than_eigenaxis
 from .solution import SlewSolution
 from .switch_time_opt import switch_time_applies
 from . import auto_route, cone_routes, multistart, stage_budget, warm_routes
@@ -368,7 +368,6 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if method == "eigenaxis":
         if guess is not None:
             raise ValueError("guess: method='eigenaxis' plans the eigenaxis slew and takes no guess")
-        from .eigenaxis_answer import eigenaxis_answer
         return eigenaxis_answer(prob)
     t0 = time.perf_counter()
     warm = None
@@ -420,13 +419,13 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         if sol is None and info and float(options.get("time_budget", 20.0)) <= time.perf_counter() - t0:
             # the learned stage spent the budget: no route (building an NLP is not interruptible)
             sol = stage_budget.budget_spent(prob, "The learned guess's candidates (and the singular table's routes, where "
-                                "they ran)", *spent_table, t0, "no time left for the default route")
+                                            "they ran)", *spent_table, t0, "no time left for the default route")
             if neighbours_bang is not None:
                 sol = warm_routes.faster_verified(sol, neighbours_bang)
         if sol is None:
             sol = auto_route.solve_auto(prob, guess, col_opts, rest, refine_cap=auto_route.REFINE_CAP_AFTER_WARM if failed_warm else 2.0,
-                              later=later, warm_info=info,
-                              warm_budget=float(options.get("warm_budget", warm_routes.WARM_BUDGET)))
+                                        later=later, warm_info=info,
+                                        warm_budget=float(options.get("warm_budget", warm_routes.WARM_BUDGET)))
             if neighbours_bang is not None:
                 sol = warm_routes.faster_verified(sol, neighbours_bang)
             sol.nit += spent_table[0]
@@ -438,7 +437,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if challenge and cone_challenge != "never":
         sol = cone_routes.cone_challenger(prob, sol, options, t0, gated=cone_challenge == "gated")
     if method == "auto":
-        sol = warm_routes.no_slower_than_eigenaxis(prob, sol, t0)
+        sol = no_slower_than_eigenaxis(prob, sol, t0)
     if info:
         sol.warm_start = info
         if warm is not None:
@@ -459,7 +458,6 @@ def _fallback_grid(prob, left=math.inf):
     term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``, not below
     ``FALLBACK_GRID_FLOOR``)."""
     from .eigenaxis import _checked, _phase_plane
-    from .eigenaxis_answer import N_GRID
     if not math.isinf(prob.torque_norm) and np.any(_phase_plane(_checked(prob))[3]):
         kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
     else:     # (a p-norm profile without a gyroscopic term is bang-coast-bang, exact on any grid)
@@ -480,7 +478,6 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSoluti
     if why is not None:
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {why}.)"
         return sol
-    from .eigenaxis_answer import eigenaxis_answer
     try:
         eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
     except ValueError as e:          # a zero slew: nothing to fly

@@ -42,7 +42,7 @@ def solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
     if budget <= time.perf_counter() - t0:
         # the indirect stage spent the budget: no route (building an NLP is not interruptible)
         sol = stage_budget.budget_spent(prob, "The indirect multi-start (p-norm bound, p ≤ 2)", 0, 0, t0,
-                            "no time left for the collocation route")
+                                        "no time left for the collocation route")
     else:
         left = stage_budget.left(budget, time.perf_counter() - t0)
         sol = _solve_auto_route(prob, guess, col_opts, dict(options, time_budget=left), **kw)
@@ -54,7 +54,7 @@ def solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
 
 
 def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None, warm_info=None,
-                      warm_budget=warm_routes.WARM_BUDGET) -> SlewSolution:
+                      warm_budget=None) -> SlewSolution:
     """The fastest route to a verified answer.
 
     1. a given ``guess`` alone, by the indirect route (a warm start) (without one, for a p-norm
@@ -62,7 +62,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     2. direct collocation; where its control shows a singular arc (full-attitude, per-axis,
        ``switch_time_opt.singular_arc_evidence``), straight to 3b;
     3. otherwise ``later`` (the learned guess's continuation candidates, held back by
-       ``solve``, within ``warm_budget`` s; ``warm_info`` is updated if one wins), then exact indirect refinement from
+       ``solve``, within ``warm_budget`` s, by default ``warm_routes.WARM_BUDGET``; ``warm_info`` is
+       updated if one wins), then exact indirect refinement from
        collocation's costates and switching structure (the bang-bang extremal near the
        collocation answer), with the eigenaxis guess as a second candidate;
     3b. if no exact extremal is certified (a singular arc, mostly), a bang-bang slew with
@@ -91,9 +92,9 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             tried_guess.wall_time = spent()
             return tried_guess
         if budget <= spent():
-            return stage_budget.budget_spent(prob, "The given guess", tried_guess.nit, tried_guess.nfev, t0,
-                                 f"auto: given guess failed ({tried_guess.message[:120]}) → no time left for "
-                                 "collocation")
+            return stage_budget.budget_spent(
+                prob, "The given guess", tried_guess.nit, tried_guess.nfev, t0,
+                f"auto: given guess failed ({tried_guess.message[:120]}) → no time left for collocation")
     from .collocation import solve_collocation
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
@@ -136,7 +137,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             where the λω = 0 instant makes a near guess hard to refine): ``(ref, accepted, why)``;
             an accepted ``ref`` gets its route (``note`` after collocation's time) and wall time."""
             r, ok = refine_collocation(prob, col, options, 2,
-                                        min(refine_cap, stage_budget.left(budget, spent())))
+                                       min(refine_cap, stage_budget.left(budget, spent())))
             if ok:
                 r.route = f"auto: collocation ({col.wall_time:.3g} s{note}) → indirect refinement: {r.route}"
                 r.wall_time = spent()
@@ -146,7 +147,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
         ref = None
         if singular is None:
             if later is not None and budget - spent() > 0.05:
-                lg = multistart.guess_alone(prob, later, options, min(warm_budget, budget - spent()))
+                wb = warm_routes.WARM_BUDGET if warm_budget is None else warm_budget
+                lg = multistart.guess_alone(prob, later, options, min(wb, budget - spent()))
                 if warm_info is not None:
                     warm_info["deferred_result"] = "succeeded" if lg.success else "failed"
                 if lg.success:

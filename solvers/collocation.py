@@ -150,7 +150,7 @@ reproduce the trajectory on their own — ``control(t)`` does. p-norm: empty lis
 ``u_first`` is the sign of each axis's first saturated sample.
 
 Not covered: a cone set that blocks every path is rejected before solving
-(``cones_block_every_path``, an optimistic grid test: gaps narrower than 0.5° count as
+(``cone_passability.cones_block_every_path``, an optimistic grid test: gaps narrower than 0.5° count as
 open and are left to IPOPT, which then reports infeasibility or converges); starts or
 targets inside a cone are rejected by ``SlewProblem`` itself.
 """
@@ -683,7 +683,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         More starts, each propagated (bang-bang from its switch times, else the extremal of its
         costates) and solved with the others on the coarse grid; one whose propagation fails or
         is not finite is skipped. ``auto`` gives the nearest solutions of the shipped
-        pointing-cones table here (``CONE_NEIGHBOUR_STARTS``).
+        pointing-cones table here (``cone_routes.CONE_NEIGHBOUR_STARTS``).
     defer_tf_tol : bool
         With cones, skip the ``N / 2`` solve that measures ``tf_tol`` (about a fifth of the
         call's time): the answer's ``tf_tol`` is NaN until ``settle_tf_tol(answer)`` runs that
@@ -775,8 +775,8 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=Tru
     t0 = time.perf_counter()
     for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
         if n is not None:
-            tpl = collocation_nlp._template(n, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tl),
-                            int(mi), bool(verbose))
+            tpl = collocation_nlp.nlp_template(n, prob.is_pointing, len(prob.cones), float(sc.p),
+                                               sc.rate is not None, float(tl), int(mi), bool(verbose))
             if n == N and (prob.cones or sc.rate is not None):
                 tpl.warm_solver     # the back-off rounds start from the answer's primal-dual point
     return time.perf_counter() - t0
@@ -962,8 +962,8 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
         if not (run.success and time.perf_counter() < dl):
             return math.nan, 0, 0
         try:
-            nlp_cmp = nlp1 if N_half is None else collocation_nlp.NLP(sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7),
-                                                       min(max_iter, _COARSE_MAX_ITER), verbose, dl)
+            nlp_cmp = nlp1 if N_half is None else collocation_nlp.NLP(
+                sc, _coarse_mesh(mesh_arr, N_half), max(tol, 1e-7), min(max_iter, _COARSE_MAX_ITER), verbose, dl)
         except collocation_nlp.NoTimeToBuild:
             return math.nan, 0, 0
         r2 = nlp_cmp.solve(_regrid(run, nlp_cmp), dl, run.source, delta=run.delta)

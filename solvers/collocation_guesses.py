@@ -109,7 +109,7 @@ def _eigen_path(sc: collocation_nlp.Scaled, q_start, q_end, source):
 def _concat(a: TrajGuess, b: TrajGuess, source):
     t = np.concatenate([a.t, a.T + b.t[1:]])
     return TrajGuess(a.T + b.T, t, np.vstack([a.q, b.q[1:]]), np.vstack([a.w, b.w[1:]]),
-                      np.vstack([a.u, b.u[1:]]), source)
+                     np.vstack([a.u, b.u[1:]]), source)
 
 
 def _with_rates(sc: collocation_nlp.Scaled, g: TrajGuess):
@@ -212,7 +212,7 @@ def _solution_guess(sc: collocation_nlp.Scaled, sol: SlewSolution):
         raise ValueError("guess: the given SlewSolution has no trajectory to start from")
     t = np.asarray(sol.t) / sc.tau
     return TrajGuess(float(sol.tf) / sc.tau, t, np.asarray(sol.q), np.asarray(sol.omega) * sc.tau,
-                      np.asarray(sol.u) / sc.umax0, f"solution({sol.method or 'given'})")
+                     np.asarray(sol.u) / sc.umax0, f"solution({sol.method or 'given'})")
 
 
 def _perturbed(sc: collocation_nlp.Scaled, g: TrajGuess, rng, amp=0.2):

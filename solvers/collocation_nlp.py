@@ -282,7 +282,7 @@ def build_estimate(N, n_cones) -> float:
 BUILD_MARGIN = 1.4
 
 
-def _template(N, pointing, n_cones, p, rate, tol, max_iter, verbose, deadline=math.inf) -> _Template:
+def nlp_template(N, pointing, n_cones, p, rate, tol, max_iter, verbose, deadline=math.inf) -> _Template:
     key = (N, pointing, n_cones, p, rate, tol, max_iter, verbose)
     tpl = _CACHE.get(key)
     if tpl is None:
@@ -321,8 +321,8 @@ class NLP:
         prob = sc.prob
         N = int(mesh.shape[0])
         self.sc, self.N, self.mesh = sc, N, np.asarray(mesh, float)
-        tpl = _template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tol),
-                        int(max_iter), bool(verbose), deadline)
+        tpl = nlp_template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tol),
+                           int(max_iter), bool(verbose), deadline)
         self.tpl = tpl
         self.nx = tpl.nx
         self.iX, self.iXm, self.iU, self.iUm = tpl.iX, tpl.iXm, tpl.iU, tpl.iUm
@@ -443,8 +443,8 @@ class NLP:
         nit = int(st.get("iter_count", 0))
         nfev = int(st.get("n_call_nlp_g", nit + 1))
         return Run(float(w[0]), w, np.asarray(r["lam_g"]).ravel(), status,
-                    bool(st.get("success", False)) and status in CONVERGED_STATUSES, nit, nfev, self, source,
-                    delta, np.asarray(r["lam_x"]).ravel())
+                   bool(st.get("success", False)) and status in CONVERGED_STATUSES, nit, nfev, self, source,
+                   delta, np.asarray(r["lam_x"]).ravel())
 
     def g(self, w, delta=0.0):
         return np.asarray(self.tpl.geval(w, self.params(delta))).ravel()

@@ -34,9 +34,10 @@ CONE_CANDIDATE_CAP = 0.06
 CONE_RANK_CANDIDATES = True
 CONE_RANK_SHARE = 0.1
 
-# s: auto's bang-bang switch-time optimisation (``auto_route.BANG_BANG_BUDGET``) with keep-out cones or
-# a pointing target (its pulse rounds in turn, each with what is left): on 90 seed-100 cone problems 1 s left 11 answers to collocation that 4 s verified; on
-# Melton's BP2 the round without pulses takes ~1 s and the one with 4 pairs, the answer, ~1.2 s
+# s: auto's bang-bang switch-time optimisation (``auto_route.BANG_BANG_BUDGET``) with keep-out cones
+# or a pointing target (its pulse rounds in turn, each with what is left): on 90 seed-100 cone
+# problems 1 s left 11 answers to collocation that 4 s verified; on Melton's BP2 the round without
+# pulses takes ~1 s and the one with 4 pairs, the answer, ~1.2 s
 CONE_BANG_BANG_BUDGET = 3.0
 
 
@@ -290,7 +291,8 @@ def bang_bang_cones(prob, col, options, left):
 
 
 def settle_tf_tol(sol, budget) -> None:
-    """``collocation.settle_tf_tol`` (imported where used, as collocation is everywhere here)."""
+    """``collocation.settle_tf_tol``, for the cone refinements here and ``auto_route.refine_collocation``
+    (collocation is imported where used, as throughout the routes)."""
     from .collocation import settle_tf_tol as settle
     settle(sol, budget)
 
@@ -340,7 +342,7 @@ def solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
                                                       **col_opts))
     if not col.success:
         free = clear_without_cones(prob, col, options, col_opts, budget - (time.perf_counter() - t0),
-                                    exact_only=True, label="indirect with cones")
+                                   exact_only=True, label="indirect with cones")
         if free is not None:
             free.wall_time = time.perf_counter() - t0
             return free
@@ -374,3 +376,9 @@ def solve_indirect_cones(prob, guess, col_opts, options) -> SlewSolution:
     sol.route = f"indirect with cones: collocation ({col.wall_time:.3g} s, tf {col.tf:.6g}) → {sol.route}"
     sol.wall_time = time.perf_counter() - t0
     return sol
+
+
+def warm_up_solve(problem, guess):
+    """A cone model's warm-up solve: its guess through the same route as the candidates, with
+    no time caps (``ConeEnsembleWarmStart.warm_up`` runs one with touches, one without)."""
+    return solve_learned_cones(problem, guess, {}, 5.0, cap=5.0)

@@ -111,7 +111,7 @@ def solve_switch_times(bvp, z0, structure: Structure, T0, *, tol=1e-12, max_iter
     ``1e3 · coarse_rtol`` (most iterations, cheap), then at the problem's own tolerance
     to ``tol``. ``deadline`` (``time.perf_counter()`` time): checked before each iteration.
     ``stall``: ``(k, ratio)``, stop (as failed) once ``k`` iterations have not brought the
-    residual below ``ratio`` times the first one (``TEMPLATE_STALL``).
+    residual below ``ratio`` times the first one (``multistart.TEMPLATE_STALL``).
     """
     if coarse_rtol is not None and coarse_rtol > bvp.rtol:
         fine = (bvp.rtol, bvp.atol)

@@ -1,6 +1,7 @@
-"""``solve``'s learned warm start for slews without cones: the model's candidates, the checks of
-its answer (the eigenaxis baseline, the collocation challenge of a likely local optimum), and the
-shortcuts after it fails (the singular table, the nearest tabled sequences)."""
+"""``solve``'s learned warm start: the model's candidates (a cone model's through
+``cone_routes.solve_learned_cones``), the checks of its answer (the eigenaxis baseline, the
+collocation challenge of a likely local optimum), and the shortcuts after a full-attitude guess
+fails (the singular table, the nearest tabled sequences)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,10 @@ import time
 from dataclasses import replace
 from typing import Optional, Tuple
 
-from .attitude_bvp import AttitudeBVP
 from .guesses import Guess
-from .eigenaxis import eigenaxis_time
-from .eigenaxis_answer import GRID_MARGIN, eigenaxis_inapplicable
 from .solution import SlewSolution
 from .verify import make_check
-from . import auto_route, cone_routes, multistart, stage_budget
+from . import auto_route, cone_routes, eigenaxis_answer, multistart, stage_budget
 
 WARM_BUDGET = 1.0   # s: the learned guess's candidates (its continuation candidate rarely needs more)
 
@@ -177,7 +175,7 @@ def singular_table_route(prob, options, info, col_opts=None, exact_check=True):
         return None, spent
     prefix = f"singular table ({share:.0%} of the {table.k} nearest problems singular)"
     ex = multistart.exact_from_kkt(prob, bang, kkt_guess, options,
-                         min(SINGULAR_KKT_BUDGET, budget - (time.perf_counter() - t0)), prefix)
+                                   min(SINGULAR_KKT_BUDGET, budget - (time.perf_counter() - t0)), prefix)
     if ex is not None:
         rec.update(used=True, time_s=time.perf_counter() - t0)
         return ex, (0, 0)
@@ -201,9 +199,9 @@ def singular_table_route(prob, options, info, col_opts=None, exact_check=True):
 
 def _faster_than_eigenaxis(prob, answer) -> bool:
     """Whether a bang-bang ``answer`` of a rest-to-rest full-attitude problem is faster than its
-    eigenaxis slew (``_eigenaxis_unless_faster``: the grid time, or the slew itself when near it);
+    eigenaxis slew (``eigenaxis_answer.eigenaxis_unless_faster``: the grid time, or the slew itself when near it);
     if so its ``baseline_tf`` and ``eigenaxis_baseline`` check are set."""
-    baseline, eig = _eigenaxis_unless_faster(prob, answer.tf)
+    baseline, eig = eigenaxis_answer.eigenaxis_unless_faster(prob, answer.tf)
     if eig is not None:
         if not (eig.success and answer.tf < eig.tf):
             return False
@@ -255,9 +253,8 @@ def neighbour_sequences_route(prob, options, info) -> Tuple[Optional[SlewSolutio
             continue
         prefix = f"the nearest tabled solutions' sequences ({tried} tried)"
         bang.nit, bang.nfev = nit, nfev
-        ex = multistart.exact_from_kkt(prob, bang, kkt_guess, options,
-                             min(NEIGHBOUR_KKT_BUDGET, budget + NEIGHBOUR_KKT_BUDGET - (time.perf_counter() - t0)),
-                             prefix)
+        left = budget + NEIGHBOUR_KKT_BUDGET - (time.perf_counter() - t0)
+        ex = multistart.exact_from_kkt(prob, bang, kkt_guess, options, min(NEIGHBOUR_KKT_BUDGET, left), prefix)
         if ex is not None and best is not None and ex.tf > best.tf * (1.0 + 1e-9):
             # an earlier sequence gave a faster verified slew: this extremal is a local optimum
             nit, nfev = ex.nit, ex.nfev
@@ -400,7 +397,7 @@ def try_warm_start(prob, method, warm_start, options, split=False):
     t_inf = t_guess if t_inf is None else t_inf
     # a model may load the solver's compiled code first (once per process), so that its
     # candidates' time caps measure solving, not loading; not counted in the solve's time
-    t_warm = model.warm_up(warm_up_solve) if prob.cones and hasattr(model, "warm_up") else 0.0
+    t_warm = model.warm_up(cone_routes.warm_up_solve) if prob.cones and hasattr(model, "warm_up") else 0.0
     t0 += t_warm
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     total = float(options.get("time_budget", 20.0))
@@ -409,7 +406,7 @@ def try_warm_start(prob, method, warm_start, options, split=False):
     skipped = []
     if prob.cones:
         sol = cone_routes.solve_learned_cones(prob, g, opts, budget, errors=skipped,
-                                   rank=bool(getattr(model, "RANKS_CANDIDATES", False)))
+                                              rank=bool(getattr(model, "RANKS_CANDIDATES", False)))
     else:
         sol = multistart.guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
@@ -430,56 +427,6 @@ def try_warm_start(prob, method, warm_start, options, split=False):
     if sol.success:
         sol.route = f"learned guess ({name}) → {sol.route}"
     return sol, info, later
-
-
-def no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
-    """``auto``'s answer to a rest-to-rest full-attitude problem is never slower than the
-    eigenaxis slew: an approximate (collocation) answer that is not faster — small slews,
-    where the two agree to first order and collocation cannot resolve the difference — is
-    replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
-    if not sol.success or sol.exact or eigenaxis_inapplicable(prob) is not None:
-        return sol
-    # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
-    # p-norm with a rate limit): compare with the eigenaxis answer itself, which is cheap for a
-    # per-axis bound (compiled, ~7 ms) and planned only when the answer is not clearly faster
-    # than the fine grid; for a p-norm bound only when the answer is within 3 % of that baseline
-    if not math.isinf(prob.torque_norm):
-        if not (sol.tf >= sol.baseline_tf * (1.0 - 0.03)):
-            return sol
-        from .eigenaxis_answer import eigenaxis_answer
-        eig = eigenaxis_answer(prob)
-    else:
-        _, eig = _eigenaxis_unless_faster(prob, sol.tf)
-    if eig is None or not eig.success or not eig.tf < sol.tf:
-        return sol
-    eig.route = (f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "
-                 f"({eig.tf:.9g}): the eigenaxis slew is the answer")
-    eig.message = (f"{eig.message} The time-optimal routes found nothing faster (best {sol.tf:.9g}, approximate, "
-                   f"tf_tol {sol.tf_tol:.2g}): for a slew this small the two agree to first order.")
-    eig.nit, eig.nfev = sol.nit, sol.nfev
-    eig.candidates_tf = sorted(set(list(sol.candidates_tf or []) + [round(eig.tf, 9)]))
-    eig.warm_start = sol.warm_start
-    eig.wall_time = time.perf_counter() - t0
-    return eig
-
-
-def _eigenaxis_unless_faster(prob, tf):
-    """``(baseline, eig)`` for a rest-to-rest, full-attitude, per-axis problem and a final time
-    ``tf``: if ``tf`` is below the fine-grid eigenaxis time (problem units) by the margin
-    ``eigenaxis_answer.GRID_MARGIN``, it is faster than the eigenaxis slew, and ``(grid time, None)``;
-    else the slew itself is planned (~15 ms): ``(grid time, eigenaxis_answer)``."""
-    from .eigenaxis_answer import eigenaxis_answer
-    bvp = AttitudeBVP(prob)
-    grid = eigenaxis_time(bvp.ref_problem, n_grid=1000)
-    if tf < grid * (1.0 - GRID_MARGIN):
-        return grid, None
-    return grid, eigenaxis_answer(prob)
-
-
-def warm_up_solve(problem, guess):
-    """A cone model's warm-up solve: its guess through the same route as the candidates, with
-    no time caps (``ConeEnsembleWarmStart.warm_up`` runs one with touches, one without)."""
-    return cone_routes.solve_learned_cones(problem, guess, {}, 5.0, cap=5.0)
 
 
 def replace_answer(new, old, info) -> SlewSolution:
