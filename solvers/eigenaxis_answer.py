@@ -43,10 +43,19 @@ N_DENSE = 2000
 GRID_MARGIN = 1e-3
 
 
+# the same for the multi-start's gate, by bound: the 1,000-step grid lies above the fine one by up to
+# 3.8e-4 per-axis and 9.9e-5 under a 2-norm bound (6 random slews of J = [0.3, 0.6, 1] each,
+# session 32); the fine grid costs 13 and 25-34 ms there (the seconds below, with a margin), and is
+# computed only when an answer falls within the margin and the solve has that much time left.
+# (Under a 2-norm bound a nearly symmetric body's optimum lies within 1e-5 of its eigenaxis slew:
+# 2 of bench_budget's 10 p-norm slews pay the 25 ms, runs/s32/bench_budget2.txt)
+FINE_GATE = {"per-axis": (GRID_MARGIN, 0.02), "p-norm": (1.5e-4, 0.05)}
+
+
 def fine_eigenaxis_time(prob) -> float:
     """The eigenaxis slew's time of ``prob`` on the planner's fine grid (``N_GRID`` steps per-axis,
     within ~4e-8 of the continuous profile; ``N_GRID_PNORM_GYRO`` for a p-norm bound), for
-    deciding whether an answer near the 1,000-step grid time (within ``GRID_MARGIN``) is faster."""
+    deciding whether an answer near the 1,000-step grid time (``FINE_GATE``) is faster."""
     from .eigenaxis import eigenaxis_time
     return eigenaxis_time(prob, n_grid=N_GRID if math.isinf(prob.torque_norm) else N_GRID_PNORM_GYRO)
 

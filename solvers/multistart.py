@@ -15,7 +15,7 @@ from .guesses import Guess, eigenaxis_guess, perturbed, structure_templates, sym
 from .indirect import Attempt, per_axis_from_guess, pnorm_from_guess, solution_fields, solve_structure
 from .shooting import newton_shoot
 from .eigenaxis import eigenaxis_time
-from .eigenaxis_answer import GRID_MARGIN, fine_eigenaxis_time
+from .eigenaxis_answer import FINE_GATE, fine_eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
@@ -234,10 +234,13 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
     def near_baseline(T):
         """The baseline for an extremal of time ``T``: the 1,000-step grid time, which lies above
         the continuous profile (by up to ~5e-4 on strongly asymmetric bodies), unless ``T`` is
-        within ``GRID_MARGIN`` of it: then the fine grid's, once (~20 ms), so that an extremal
-        between the two is not taken for faster than the eigenaxis slew."""
+        within the bound's margin of it (``FINE_GATE``) and the solve has the time: then the fine
+        grid's, once (13-34 ms), so that an extremal between the two is not taken for faster than
+        the eigenaxis slew. (Past the deadline the grid's stands, as before: a budget comes first.)"""
         nonlocal baseline, fine_done
-        if not fine_done and math.isfinite(baseline) and T >= baseline * (1.0 - GRID_MARGIN):
+        margin, cost = FINE_GATE["per-axis" if per_axis else "p-norm"]
+        if (not fine_done and math.isfinite(baseline) and T >= baseline * (1.0 - margin)
+                and deadline - time.perf_counter() > cost):
             fine_done = True
             baseline = min(baseline, fine_eigenaxis_time(bvp.ref_problem) / bvp.tau)
         return baseline
