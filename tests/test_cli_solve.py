@@ -67,6 +67,8 @@ def test_summary_and_stdout_output_without_dense(capsys):
     for word in ("success", "tf", "switches", "u_first", "nit / nfev", "wall time", "route", "guess",
                  "candidates", "baseline", "verification", "replay"):
         assert word in cap.err
+    # how the answer's control is defined, as its record says
+    assert sol["control_law"] == "bang-bang" and "control       bang-bang: ±torque_max" in cap.err
 
 
 def test_solver_failure_exits_1_and_still_writes(tmp_path, monkeypatch, capsys):

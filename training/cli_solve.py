@@ -262,6 +262,10 @@ def summary_lines(sol, prob, warm=None):
         else:
             L.append(f"warm start    {ws.get('model')}: not used ({ws.get('reason')})")
     L.append(f"method        {sol.method}")
+    law = getattr(sol, "control_law", "")
+    if law:
+        from solvers.solution import CONTROL_LAWS
+        L.append(f"control       {law}: {CONTROL_LAWS[law]}")
     L.append(f"route         {sol.route or '-'}")
     L.append(f"guess         {sol.guess or '-'}")
     cands = ", ".join(_fmt_tf(v) for v in sol.candidates_tf) or "none"
