@@ -55,6 +55,9 @@ def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=Fal
     """Validate a finite float vector of ``length`` entries (scalar broadcast if allowed)."""
     if _has_bool(value):
         raise ValueError(f"{name}: expected numbers, got a boolean in {value!r}")
+    if _has_text(value):
+        raise ValueError(f"{name}: expected numbers, got text in {value!r:.120} (write numbers "
+                         "without quotes)")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError, OverflowError):
@@ -93,11 +96,27 @@ def _has_bool(value) -> bool:
     return False
 
 
+def _has_text(value) -> bool:
+    """Whether ``value`` is or holds a string, which numpy would parse as a number: a quoted
+    "1" in a JSON file is more likely a slip than intent, so it is refused, not guessed at."""
+    if isinstance(value, (str, bytes, np.str_, np.bytes_)):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "SUO" and (value.dtype.kind != "O"
+                                             or any(_has_text(v) for v in value.ravel()))
+    if isinstance(value, (list, tuple)):
+        return any(_has_text(v) for v in value)
+    return False
+
+
 def _number(name, value, what="a number"):
-    """``value`` as a float: ``ValueError`` naming ``name`` for booleans, non-numbers and
-    integers too large for a float."""
+    """``value`` as a float: ``ValueError`` naming ``name`` for booleans, text, non-numbers
+    and integers too large for a float."""
     if isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name}: expected {what}, got {value!r}")
+    if _has_text(value):
+        raise ValueError(f"{name}: expected {what}, got text {value!r:.120} (write numbers "
+                         "without quotes)")
     try:
         return float(value)
     except (TypeError, ValueError, OverflowError):

@@ -265,6 +265,11 @@ def _check_options(options) -> None:
     _int_option(options, "n_dense", 1, MAX_DENSE_STEPS)
     for key in ("max_candidates", "min_candidates", "enough"):
         _int_option(options, key, 1, 10_000)
+    lo, hi = options.get("min_candidates"), options.get("max_candidates")
+    if lo is not None and hi is not None and lo > hi:
+        # a default min above a given max is capped by it; two given bounds that contradict
+        # each other are a slip
+        raise ValueError(f"min_candidates: {lo} is more than max_candidates ({hi})")
     if "seed" in options and options["seed"] is not None:
         _int_option(options, "seed", 0, 2 ** 63 - 1)
     for key in ("eps_min", "rtol", "atol"):

@@ -47,6 +47,26 @@ class _FailedCandidate:
         raise type(self.kind, (RuntimeError,), {})(self.message)
 
 
+def _not_a_number(v) -> bool:
+    """Whether ``v`` is or holds a boolean or text, which numpy would silently take as numbers
+    (``True`` as 1, ``"1"`` as 1)."""
+    if isinstance(v, (bool, np.bool_, str, bytes)):
+        return True
+    if isinstance(v, (list, tuple)):
+        return any(_not_a_number(x) for x in v)
+    return isinstance(v, np.ndarray) and v.dtype.kind in "bSU"
+
+
+def _numbers(name, value):
+    """``value`` as a float array, or a ``ValueError`` naming ``name``."""
+    if value is None or _not_a_number(value):
+        raise ValueError(f"{name}: expected numbers, got {value!r:.80}")
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected numbers, got {value!r:.80}") from None
+
+
 @dataclass
 class Guess:
     costate0: np.ndarray
@@ -61,21 +81,24 @@ class Guess:
     touches: Optional[list] = None
 
     def __post_init__(self):
-        c = np.asarray(self.costate0, dtype=float)
+        c = _numbers("guess.costate0", self.costate0)
         if c.shape != (7,):
             raise ValueError(f"guess.costate0: expected 7 numbers [λq (4), λω (3)], got shape {c.shape}")
         if not np.all(np.isfinite(c)):
             raise ValueError("guess.costate0: all entries must be finite")
         self.costate0 = c
-        if not (math.isfinite(float(self.tf)) and float(self.tf) > 0.0):
-            raise ValueError(f"guess.tf: must be a positive finite time, got {self.tf}")
-        self.tf = float(self.tf)
+        tf = _numbers("guess.tf", self.tf)
+        if tf.shape != () or not (math.isfinite(float(tf)) and float(tf) > 0.0):
+            raise ValueError(f"guess.tf: must be a positive finite time, got {self.tf!r:.80}")
+        self.tf = float(tf)
         if self.switch_times is not None:
-            if len(self.switch_times) != 3:
+            if isinstance(self.switch_times, (str, bytes)) or not hasattr(self.switch_times, "__len__") \
+                    or len(self.switch_times) != 3:
                 raise ValueError("guess.switch_times: expected a list of 3 arrays (one per axis)")
-            self.switch_times = [np.asarray(s, dtype=float).ravel() for s in self.switch_times]
+            self.switch_times = [_numbers(f"guess.switch_times[{i}]", s).ravel()
+                                 for i, s in enumerate(self.switch_times)]
         if self.u_first is not None:
-            u = np.asarray(self.u_first, dtype=float)
+            u = _numbers("guess.u_first", self.u_first)
             if u.shape != (3,) or not np.all(np.isfinite(u)):
                 raise ValueError(f"guess.u_first: expected 3 finite signs (one per axis), got shape {u.shape}")
             self.u_first = np.sign(u)

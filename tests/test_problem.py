@@ -583,6 +583,20 @@ def test_booleans_and_huge_integers_are_refused_by_name():
         SlewProblem.from_dict({"inertia": [1, 1, 1], "qf": [0, 1, 0, 0], "cones": [{"axis": [1, 0, 0], "half_angle": True}]})
 
 
+def test_numbers_written_as_text_are_refused_by_name():
+    # numpy reads "1" as 1.0; a quoted number in a JSON file is a slip, not a request
+    with pytest.raises(ValueError, match=r"^inertia: expected numbers, got text"):
+        SlewProblem(["1", "2", "3"], qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^torque_max: expected numbers, got text"):
+        SlewProblem([1.0, 2.0, 3.0], torque_max="1", qf=[0.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^qf: expected numbers, got text"):
+        SlewProblem([1.0, 2.0, 3.0], qf=np.array(["0", "1", "0", "0"]))
+    with pytest.raises(ValueError, match=r"^cones\[0\]\.half_angle: expected a number \(rad\), got text"):
+        SlewProblem.from_dict({"inertia": [1, 1, 1], "qf": [0, 1, 0, 0], "cones": [{"axis": [1, 0, 0], "half_angle": "0.3"}]})
+    # the one documented text value: the per-axis bound, which JSON cannot write as a number
+    assert SlewProblem([1.0, 2.0, 3.0], torque_norm="inf", qf=[0.0, 1.0, 0.0, 0.0]).torque_norm == math.inf
+
+
 def test_bodies_and_rates_beyond_the_solvers_range_are_refused_by_name():
     # a 1e6 spread of the axes' accelerations, or rates of 1e6 / τ, ran seconds past a time budget
     with pytest.raises(ValueError, match=r"^inertia, torque_max: the axes' acceleration bounds .* 1\.5e\+06"):

@@ -82,6 +82,8 @@ def test_bad_segments():
     ("atol", -1.0, r"^atol: expected a positive finite number"),
     ("eps_min", float("nan"), r"^eps_min: expected a positive finite number"),
     ("max_candidates", -1, r"^max_candidates: expected an integer"),
+    # both bounds given and contradicting each other (a fuzz run: accepted without a word)
+    ("min_candidates", 10, r"^min_candidates: 10 is more than max_candidates \(2\)"),
     ("seed", "x", r"^seed: expected an integer"),
     ("collocation", {"bogus": 1}, r"^collocation: unknown option\(s\) \['bogus'\]"),
     ("collocation", {"n_intervals": 10 ** 6}, r"^n_intervals: at most 5,000"),
@@ -90,9 +92,10 @@ def test_bad_segments():
 def test_bad_options_are_refused_whatever_the_route(key, bad, match):
     """Found by a fuzz run: these raised TypeError, ZeroDivisionError or CasADi's bad_alloc deep
     inside, or passed unnoticed where the learned guess answered before the option was read."""
+    extra = {"max_candidates": 2} if key == "min_candidates" else {}
     for method in ("auto", "indirect"):
         with pytest.raises(ValueError, match=match):
-            solvers.solve(_prob(), method=method, **{key: bad})
+            solvers.solve(_prob(), method=method, **{key: bad}, **extra)
 
 
 def test_guess_with_nan_costate():
@@ -107,6 +110,21 @@ def test_guess_with_bad_tf_and_shape():
         solvers.Guess(costate0=np.ones(6), tf=1.0)
     with pytest.raises(ValueError, match=r"^guess.switch_times: expected a list of 3 arrays"):
         solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[0.1], [0.2]])
+
+
+def test_guess_fields_that_are_not_numbers_are_refused_by_name():
+    # a fuzz run: tf=None raised a bare TypeError, tf="abc" a ValueError naming no field, and
+    # tf="2" was read as 2 without a word
+    for bad in (None, "abc", "2", True):
+        with pytest.raises(ValueError, match=r"^guess.tf: expected numbers"):
+            solvers.Guess(costate0=np.ones(7), tf=bad)
+    with pytest.raises(ValueError, match=r"^guess.costate0: expected numbers"):
+        solvers.Guess(costate0=["1"] * 7, tf=1.0)
+    with pytest.raises(ValueError, match=r"^guess.switch_times\[2\]: expected numbers"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[0.1], [0.2], ["x"]])
+    with pytest.raises(ValueError, match=r"^guess.u_first: expected numbers"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, u_first=[1, -1, True])
+    assert solvers.Guess(costate0=np.ones(7), tf=np.float32(2.0)).tf == 2.0
 
 
 def test_guess_of_wrong_type():
