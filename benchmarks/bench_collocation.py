@@ -20,8 +20,6 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import solvers  # noqa: E402
-from slew_env import SlewProblem  # noqa: E402
-from slew_env.core import qfrom_uniform  # noqa: E402
 from solvers.collocation import solve_collocation  # noqa: E402
 from bench_solver import random_problems  # noqa: E402  (the same problem set)
 

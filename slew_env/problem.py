@@ -16,8 +16,8 @@ import math
 import os
 import sys
 import warnings
-from dataclasses import dataclass, field
-from typing import Any, Iterable, Optional, Sequence
+from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 

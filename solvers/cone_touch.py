@@ -452,7 +452,6 @@ def touch_guess_from(problem, seed, touches) -> Guess:
     """A ``Guess`` with touches from a dense answer ``seed`` and its contacts ``touches``
     (``find_touches``): its costates at t = 0, the contact instants, and the multipliers from
     the seed's costate jumps across each contact, projected on the constraint gradient."""
-    tau = math.sqrt(float(problem.inertia.max()) / float(problem.torque_max.max()))
     s = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
     ts = np.asarray(seed.t, float)
     C = np.asarray(seed.costate, float)

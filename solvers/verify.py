@@ -203,7 +203,6 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory
     if the caller already has it (the solver's own event check), else it is recorded here.
     """
     tols = dict(DEFAULT_TOLS, **(tols or {}))
-    prob = bvp.problem
     checks = {}
     tr = trajectory if trajectory is not None else dense_record(bvp, z, T, n_dense)
     if not tr.ok or tr.t.shape[0] < 2:

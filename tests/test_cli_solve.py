@@ -1,6 +1,5 @@
 """``slew solve``: single problem, batch, error handling (in-process via training.cli.main)."""
 import json
-import os
 from pathlib import Path
 
 import pytest

@@ -1,7 +1,6 @@
 """auto's route through the nearest tabled solutions' switching sequences: where the learned
 candidates fail and the singular table votes bang-bang, the neighbours' sequences, their switch
 times optimised, lead the exact solver to the extremal without collocation."""
-import numpy as np
 import pytest
 
 from solvers import solve, multistart

@@ -8,7 +8,7 @@ import yaml
 from slew_env import SlewEnv, SlewProblem
 from slew_env.core.quaternion import qrotate
 from training.rl.dense_expert import (control_of, dagger, inflate_cones, load_records, min_margin_deg,
-                                      record_pairs, solve_dense, solve_range)
+                                      record_pairs, solve_range)
 from training.rl.evaluate import heldout_problems
 
 

@@ -1,6 +1,4 @@
 """Bad input to solvers.solve gives a clear ValueError naming the field, never a hang."""
-import math
-
 import numpy as np
 import pytest
 

@@ -150,7 +150,6 @@ def _python_propagate_sequence(bvp, times, axes, signs0, T, y0, want_jac):
 def test_the_compiled_sequence_end_matches_the_python_loop():
     from solvers.switch_time import propagate_sequence
     from solvers.switch_time_opt import _start_state
-    rng = np.random.default_rng(8)
     for k, (bvp, z, times, T, st) in enumerate(_cases(16, seed=21)):
         times = times.copy()
         if k % 4 == 3 and times.size:

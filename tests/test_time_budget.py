@@ -1,7 +1,6 @@
 """solve's ``time_budget`` holds for the whole solve: stages get what is left of it, not a floor
 of their own (collocation used to get at least 1 s, the touch refinement 1.5 s, whatever the
 caller's budget), and ``method="collocation"`` takes it from solve's options."""
-import json
 import math
 import time
 from pathlib import Path

@@ -32,8 +32,8 @@ def run(args) -> int:
     for path in args.train_data or []:
         if not os.path.exists(path):
             raise FileNotFoundError(f"--train-data: no such file: {path}")
-    s = evaluate(args.family, args.n, args.seed, args.model, args.train_data, args.out, args.baseline_n,
-                 args.workers, args.budget, progress_bar=not args.no_progress, warm_budget=args.warm_budget)
+    evaluate(args.family, args.n, args.seed, args.model, args.train_data, args.out, args.baseline_n,
+             args.workers, args.budget, progress_bar=not args.no_progress, warm_budget=args.warm_budget)
     with open(os.path.join(args.out, "report.md")) as f:
         print(f.read())
     return 0

@@ -365,7 +365,6 @@ def flow(Y0, tf, m, J, umax, mode, p, eps, signs0, rtol, atol, h0, max_steps, ma
 
     Returns ``(Y(tf), signs at tf, n_rec, n_switches, n_steps, status)``.
     """
-    n = Y0.shape[0]
     Y = Y0.copy()
     signs = signs0.copy()
     t = 0.0

@@ -14,7 +14,6 @@ File format (``.nn.npz``, ``card.kind = "pointing-cones"``): ``X`` (n, 24), ``Z`
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 
@@ -22,7 +21,7 @@ from slew_env import SlewProblem
 from ..guesses import Guess
 from ..core import warmstart_kernels as _k
 from .cone_features import cone_canonical_form, cone_unsupported_reason, solution_from_canonical
-from .model import ModelFileError, read_npz
+from .model import ModelFileError
 from .nearest import NN_FORMAT, NN_FORMAT_VERSION, neighbour_count, table_coverage
 
 ARRAYS = ("X", "Z", "T", "T_ref", "U", "F", "touch", "frac", "log_nu")

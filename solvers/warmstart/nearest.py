@@ -15,7 +15,6 @@ File format (``.nn.npz``): ``X`` (n, N_FEATURES), ``Z`` (n, 6), ``T`` (n,), ``T_
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import numpy as np

@@ -20,7 +20,7 @@ import numpy as np
 from slew_env import SlewProblem
 from solvers.warmstart.cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form,
                                              solution_to_canonical)
-from solvers.warmstart.cone_model import cone_output_layout, cone_output_size
+from solvers.warmstart.cone_model import cone_output_layout
 from .data import exact_records
 
 N_IN = N_CONE_FEATURES
