@@ -50,26 +50,37 @@ def observation_bounds(max_cones: int):
     return low, high
 
 
+def _real(v) -> bool:
+    """A real number, not a boolean or text (``float()`` would take ``True`` as 1, ``"1"`` as 1)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _whole(name, v, lo):
+    """``v`` as an int ``>= lo``, or a ``ValueError`` naming ``name``."""
+    if not (_real(v) and math.isfinite(v) and int(v) == v and v >= lo):
+        raise ValueError(f"{name}: must be a whole number >= {lo}, got {v!r:.80}")
+    return int(v)
+
+
 def make_config(control_dt, substeps, success_bonus, violation_penalty, terminate_on_violation,
                 shaping, att_tol_deg, rate_tol, max_episode_steps=None) -> np.ndarray:
     """Validate the environment arguments and pack them for the kernels."""
     def positive(name, v):
-        v = float(v)
-        if not (math.isfinite(v) and v > 0.0):
-            raise ValueError(f"{name}: must be a positive finite number, got {v!r}")
-        return v
+        if not (_real(v) and math.isfinite(v) and v > 0.0):
+            raise ValueError(f"{name}: must be a positive finite number, got {v!r:.80}")
+        return float(v)
 
     def nonneg(name, v):
-        v = float(v)
-        if not (math.isfinite(v) and v >= 0.0):
-            raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
-        return v
+        if not (_real(v) and math.isfinite(v) and v >= 0.0):
+            raise ValueError(f"{name}: must be a finite number >= 0, got {v!r:.80}")
+        return float(v)
 
-    if int(substeps) != substeps or substeps < 1:
-        raise ValueError(f"substeps: must be a whole number >= 1, got {substeps!r}")
+    if not (isinstance(terminate_on_violation, (bool, np.bool_))
+            or (_real(terminate_on_violation) and terminate_on_violation in (0, 1))):
+        raise ValueError(f"terminate_on_violation: must be True or False, got {terminate_on_violation!r:.80}")
     cfg = np.zeros(_k.CFG_LENGTH)
     cfg[_k.C_DT] = positive("control_dt", control_dt)
-    cfg[_k.C_SUBSTEPS] = int(substeps)
+    cfg[_k.C_SUBSTEPS] = _whole("substeps", substeps, 1)
     cfg[_k.C_BONUS] = nonneg("success_bonus", success_bonus)
     cfg[_k.C_PENALTY] = nonneg("violation_penalty", violation_penalty)
     cfg[_k.C_TERMINATE] = 1.0 if terminate_on_violation else 0.0
@@ -77,9 +88,7 @@ def make_config(control_dt, substeps, success_bonus, violation_penalty, terminat
     cfg[_k.C_ATT_TOL] = math.radians(positive("att_tol_deg", att_tol_deg))
     cfg[_k.C_RATE_TOL] = positive("rate_tol", rate_tol)
     if max_episode_steps is not None:
-        if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps: must be a whole number >= 1, got {max_episode_steps!r}")
-        cfg[_k.C_MAX_STEPS] = int(max_episode_steps)
+        cfg[_k.C_MAX_STEPS] = _whole("max_episode_steps", max_episode_steps, 1)
     cfg[_k.C_VIOL_TOL] = VIOLATION_TOL
     return cfg
 
@@ -93,9 +102,7 @@ def resolve_distribution(task_distribution, max_cones):
 
 
 def check_max_cones(max_cones):
-    if int(max_cones) != max_cones or max_cones < 0:
-        raise ValueError(f"max_cones: must be a whole number >= 0, got {max_cones!r}")
-    return int(max_cones)
+    return _whole("max_cones", max_cones, 0)
 
 
 def problem_to_task(problem, max_cones: int) -> tuple[SlewProblem, np.ndarray]:

@@ -365,6 +365,29 @@ def test_bad_arguments_raise():
         make(render_mode="ascii")
 
 
+@pytest.mark.parametrize("key, bad, match", [
+    # a fuzz run: these raised float()'s or int()'s own TypeError/OverflowError naming no
+    # argument, or were read as numbers without a word ("0.1" as 0.1, True as 1)
+    ("control_dt", "0.1", r"^control_dt: must be a positive finite number, got '0.1'"),
+    ("control_dt", None, r"^control_dt: must be a positive finite number, got None"),
+    ("control_dt", True, r"^control_dt: must be a positive finite number, got True"),
+    ("control_dt", [0.1], r"^control_dt: must be a positive finite number"),
+    ("substeps", float("nan"), r"^substeps: must be a whole number >= 1, got nan"),
+    ("substeps", float("inf"), r"^substeps: must be a whole number >= 1, got inf"),
+    ("substeps", None, r"^substeps: must be a whole number >= 1, got None"),
+    ("substeps", True, r"^substeps: must be a whole number >= 1, got True"),
+    ("max_cones", float("nan"), r"^max_cones: must be a whole number >= 0, got nan"),
+    ("max_cones", None, r"^max_cones: must be a whole number >= 0, got None"),
+    ("success_bonus", "1", r"^success_bonus: must be a finite number >= 0, got '1'"),
+    ("terminate_on_violation", "no", r"^terminate_on_violation: must be True or False"),
+])
+def test_arguments_of_the_wrong_type_are_refused_by_name(key, bad, match):
+    with pytest.raises(ValueError, match=match):
+        make(**{key: bad})
+    assert make(**{key: {"control_dt": 0.2, "substeps": 2, "max_cones": 3, "success_bonus": 1,
+                        "terminate_on_violation": 0}[key]}) is not None
+
+
 # ---------------------------------------------------------------- reproducibility
 def _rollout(env, seed, n=300):
     obs, info = env.reset(seed=seed)
