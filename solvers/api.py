@@ -235,8 +235,12 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     return sol
 
 
-MAX_SEGMENTS = 1000          # multiple shooting's segments (each a column block of the Jacobian)
-MAX_DENSE_STEPS = 1_000_000  # n_dense: steps of the dense record
+# multiple shooting's segments, each 14 columns of a dense Jacobian whose least-squares solve
+# costs ~3e-10 n³ s: 200 segments, ~6 s an iteration (1,000 held a 7,000-column SVD for minutes)
+MAX_SEGMENTS = 200
+# n_dense: steps of the dense record; a propagation takes at most ``attitude_bvp.MAX_STEPS``
+# (200,000), and a dense record needs n_dense steps plus two rows a switch
+MAX_DENSE_STEPS = 100_000
 
 
 def _int_option(options, key, lo, hi):

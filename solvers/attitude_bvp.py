@@ -325,14 +325,23 @@ class AttitudeBVP:
 
     # ----------------------------------------------------------------- helpers
     def record(self, z, T, n_max=20000, hmax=np.inf):
-        """Propagate the extremal from parameters ``z`` over ``T`` and record it."""
+        """Propagate the extremal from parameters ``z`` over ``T`` and record it (not ok if the
+        record ran out of rows before ``T``)."""
         y0, _ = self.initial(z)
+        if math.isfinite(hmax) and hmax > 0.0 and T > 0.0:
+            # room for every step at the cap, both sides of each switch and the adaptive
+            # steps shorter than the cap (a fixed 20,000 rows cut the record of n_dense = 30,000
+            # short at two thirds of tf, with the answer still verified)
+            n_max = max(n_max, int(min(T / hmax, MAX_STEPS)) * 2 + 2 * self.max_switches + 100)
         Y, s_end, n_rec, n_sw, steps, status, rt, rY, rs, swt, swa, s0 = self._run(
             y0, T, None, record=n_max, hmax=hmax)
         n_sw_kept = min(n_sw, swt.shape[0])
+        ok = status == af.FLOW_OK
+        msg = "" if ok else flow_failure(status)
+        if ok and n_rec >= n_max and rt[n_rec - 1] < T:
+            ok, msg = False, f"the dense record filled its {n_max} rows at t = {rt[n_rec - 1]:.6g} of {T:.6g}"
         return Trajectory(rt[:n_rec].copy(), rY[:n_rec].copy(), rs[:n_rec].copy(), swt[:n_sw_kept].copy(),
-                          swa[:n_sw_kept].copy(), s0, status == af.FLOW_OK,
-                          "" if status == af.FLOW_OK else flow_failure(status))
+                          swa[:n_sw_kept].copy(), s0, ok, msg)
 
     def arc(self, y0, duration, signs, Phi0=None):
         """One bang-bang arc with fixed ``signs`` (no switch detection)."""

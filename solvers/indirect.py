@@ -299,7 +299,8 @@ def solution_fields(bvp, z, T, route, tr, checks, guess_src, problem, structure=
     # tolerance of tf: the boundary errors and the independent replay bound how far the
     # extremal is from reaching the target; tf is known to that order (relative), and never
     # better than the integrator's 1e-10
-    err = max(checks[k]["value"] for k in ("boundary_attitude_error", "replay") if k in checks)
+    err = max((checks[k]["value"] for k in ("boundary_attitude_error", "replay") if k in checks),
+              default=math.inf)       # neither: the dense record failed (not verified)
     tf_tol = T * tau * max(1e-10, 10.0 * err)
     return dict(tf=T * tau, tf_tol=tf_tol, costate0=costate0, switch_times=sw, u_first=u_first, t=t,
                 q=tr.y[:, 0:4].copy(), omega=tr.y[:, 4:7] / tau, u=u, costate=costate,

@@ -179,6 +179,25 @@ def initial_nodes(problem, p, T, M):
     return nodes
 
 
+# seconds per column³ of ``np.linalg.lstsq`` (one BLAS thread: 3e-10 measured at 700-1,400
+# columns, more below), learnt from the solves this process has timed
+_LSTSQ_RATE = [6e-10]
+
+
+def _lstsq_seconds(shape) -> float:
+    """Predicted time of a least-squares solve of a ``shape`` matrix (0 for small ones)."""
+    n = min(shape)
+    return 0.0 if n < 200 else _LSTSQ_RATE[0] * float(n) ** 3
+
+
+def _learn_lstsq(shape, seconds) -> None:
+    n = min(shape)
+    if n >= 200:
+        # held within a factor 2 a time, so that one slow call beside another job cannot
+        # make every later many-segment solve give up
+        _LSTSQ_RATE[0] = min(2.0 * _LSTSQ_RATE[0], max(0.5 * _LSTSQ_RATE[0], seconds / float(n) ** 3))
+
+
 def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_iter=40,
                  max_step=None, min_alpha=1e-6, scale=None, linear_solver="lstsq", stall=None,
                  deadline=math.inf) -> ShootingResult:
@@ -264,7 +283,14 @@ def newton_shoot(problem, p0, T0, *, segments=1, nodes0=None, tol=1e-11, max_ite
             if dZ is not None and not np.all(np.isfinite(dZ)):
                 dZ = None
         if dZ is None:
+            if time.perf_counter() + _lstsq_seconds(Jm.shape) > min(deadline, solve_deadline.current()):
+                # the SVD of a many-segment Jacobian cannot be stopped once begun: one that the
+                # time left cannot pay for is not started (300 segments ran 20 s past 2 s)
+                status = STATUS_DEADLINE
+                break
+            t_ls = time.perf_counter()
             dZ = np.linalg.lstsq(Jm, -R, rcond=1e-12)[0]
+            _learn_lstsq(Jm.shape, time.perf_counter() - t_ls)
         if max_step is not None:
             big = float(np.max(np.abs(dZ) / scale))
             if big > max_step:

@@ -138,8 +138,62 @@ def test_batch_interrupted_leaves_no_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []       # neither the output nor a temp file
 
 
+def test_a_signal_mid_batch_stops_between_problems(tmp_path, monkeypatch):
+    """A fuzz run: Ctrl-C raised inside a solve was swallowed by IPOPT (the batch ran to its end,
+    exit 0) or came out of compiled code as a SystemError written down as a failed problem.
+    Now SIGINT and SIGTERM only ask the batch to stop; it stops before the next problem."""
+    import os
+    import signal
+    import training.cli_solve as cs
+    calls = []
+
+    def signalled(lineno, text, method, opts, dense):
+        calls.append(lineno)
+        os.kill(os.getpid(), signal.SIGTERM if len(calls) == 1 else signal.SIGINT)
+        return json.dumps({"line": lineno, "success": True})   # the solve in hand completes
+
+    monkeypatch.setattr(cs, "solve_line", signalled)
+    out = tmp_path / "never.jsonl"
+    code = main(["solve", "--batch", str(BATCH), "-o", str(out), "--no-progress"])
+    assert code == 143 and calls == [1]
+    assert list(tmp_path.iterdir()) == []       # neither the output nor a temp file
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_batch_lines_end_at_newlines_only(tmp_path):
+    # a fuzz run: str.splitlines split at a U+2028 or a form feed inside a line, and every later
+    # record's "line" was one off
+    lines = BATCH.read_text().splitlines()
+    src = tmp_path / "sep.jsonl"
+    src.write_text("{\"inertia\": [1, 2, 3], \"torque_norm\": \"inf\u2028\", \"qf\": [0, 1, 0, 0]}\r\n{bad\f}\n"
+                   + lines[1] + "\n",
+                   encoding="utf-8")
+    out = tmp_path / "sep_out.jsonl"
+    main(["solve", "--batch", str(src), "-o", str(out), "--no-progress"])
+    recs = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["line"] for r in recs] == [1, 2, 3]
+    assert recs[0]["success"] and recs[1]["status"] == -1 and recs[2]["success"]
+
+
+def test_output_to_a_fifo_writes_into_it_and_leaves_it_a_fifo(tmp_path):
+    # a fuzz run: -o /dev/null or a FIFO was replaced by a regular file (temp file + rename)
+    import os
+    import stat
+    import threading
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo).read()))
+    reader.start()
+    code = main(["solve", str(R3), "-o", str(fifo), "--repeat", "0"])
+    reader.join(timeout=60)
+    assert code == 0 and stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert abs(json.loads(got[0])["tf"] - R3_TF) <= 1e-6 * R3_TF
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["solve", "/nonexistent/problem.json"], "No such file"),
+    (["solve", str(R3), "-o", "some_new_dir/"], "names a directory"),
     (["solve", "{bad}"], "cannot read"),
     (["solve", str(R3), "--method", "newton"], "unknown method 'newton'"),
     (["solve", "--batch", "/nonexistent/problems.jsonl", "-o", "x.jsonl"], "No such file"),

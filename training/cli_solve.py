@@ -148,6 +148,8 @@ def _check_writable(path, what):
     """Fail before solving (one line) if ``path`` cannot be created."""
     if path is None or path == "-":
         return
+    if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)):
+        raise ValueError(f"{what}: {path!r} names a directory; give a file name")
     target = os.path.abspath(path)
     d = os.path.dirname(target)
     if not os.path.isdir(d):
@@ -161,8 +163,10 @@ def _check_writable(path, what):
 class AtomicWriter:
     """Text file written to ``path`` atomically (temp file in the same dir + ``os.replace``).
 
-    ``path == "-"`` writes to stdout instead (not atomic). Use as a context manager: the
-    target appears only if the block completes; otherwise the temp file is removed.
+    ``path == "-"`` writes to stdout instead (not atomic), and so does a path that exists but
+    is not a regular file (a device such as ``/dev/null``, a FIFO): replacing it would put a
+    regular file in its place. Use as a context manager: the target appears only if the block
+    completes; otherwise the temp file is removed.
     """
 
     def __init__(self, path):
@@ -176,6 +180,13 @@ class AtomicWriter:
             return self._f
         _check_writable(self.path, "-o")
         target = os.path.abspath(self.path)
+        if os.path.exists(target) and not os.path.isfile(target):
+            try:
+                self._f = open(target, "w", encoding="utf-8")
+            except OSError as e:
+                raise ValueError(f"-o: cannot write to {self.path!r}: {e.strerror or e}") from None
+            self._special = True
+            return self._f
         d = os.path.dirname(target)
         try:
             fd, self._tmp = tempfile.mkstemp(dir=d, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
@@ -195,6 +206,9 @@ class AtomicWriter:
     def __exit__(self, exc_type, exc, tb):
         if self.path == "-":
             sys.stdout.flush()
+            return False
+        if getattr(self, "_special", False):
+            self._f.close()
             return False
         try:
             if exc_type is None:
@@ -365,8 +379,54 @@ def solve_line(lineno, text, method, opts, dense):
 
 
 def _batch_items(path):
+    """``(line number, text)`` of each non-blank line. Lines end at ``\n`` only, as in JSON
+    Lines: ``str.splitlines`` would also split at U+2028, NEL or a form feed inside a line,
+    and number every later line wrong."""
     text = _read_text(path, "--batch")
-    return [(k, line) for k, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    return [(k, line.removesuffix("\r")) for k, line in enumerate(text.split("\n"), start=1)
+            if line.strip()]
+
+
+class _StopRequest:
+    """While active, Ctrl-C (SIGINT) and SIGTERM only ask the batch to stop after the problem
+    in hand: raised inside a solve, they were swallowed by IPOPT, or came out of compiled code
+    as a ``SystemError`` written down as a failed problem. A second Ctrl-C stops at once."""
+
+    def __init__(self):
+        self.signal = None
+        self._old = {}
+
+    def __enter__(self):
+        import signal
+        import threading
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        import signal
+        if self.signal is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signal = signum
+        print("\nslew solve: stopping after the problem in hand (Ctrl-C again to stop now)",
+              file=sys.stderr, flush=True)
+
+    def check(self):
+        if self.signal is not None:
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        import signal
+        for s, h in self._old.items():
+            signal.signal(s, h)
+        return False
+
+
+def _ignore_sigint():
+    """Pool workers leave Ctrl-C to the parent, which stops the batch between problems."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _run_batch(args, opts):
@@ -395,21 +455,24 @@ def _run_batch(args, opts):
         elif d.get("status") == BAD_LINE_STATUS:
             n_bad_input += 1
 
+    stop = _StopRequest()
     try:
-        with AtomicWriter(args.output) as f:
+        with stop, AtomicWriter(args.output) as f:
             if args.workers == 1 or len(items) <= 1:
                 for k, line in items:
+                    stop.check()
                     rec = solve_line(k, line, args.method, opts, dense)
                     f.write(rec + "\n")
                     account(rec)
                     bar.update(1)
             else:
-                _batch_pool(items, args, opts, dense, f, account, bar)
+                _batch_pool(items, args, opts, dense, f, account, bar, stop)
     except KeyboardInterrupt:
         bar.close()
         what = "stdout output incomplete" if args.output == "-" else f"{args.output} not written"
         print(f"slew solve: interrupted; {what}", file=sys.stderr)
-        return 130
+        import signal
+        return 143 if stop.signal == signal.SIGTERM else 130
     finally:
         bar.close()
     n = len(items)
@@ -421,7 +484,7 @@ def _run_batch(args, opts):
     return 0 if n_ok == n else 1
 
 
-def _batch_pool(items, args, opts, dense, f, account, bar):
+def _batch_pool(items, args, opts, dense, f, account, bar, stop):
     """Process pool; a bounded window of tasks in flight; records written in input order."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -432,10 +495,11 @@ def _batch_pool(items, args, opts, dense, f, account, bar):
     next_write = 0
     pending = {}
     it = iter(enumerate(items))
-    ex = ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx)
+    ex = ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx, initializer=_ignore_sigint)
     try:
         exhausted = False
         while True:
+            stop.check()
             while not exhausted and len(pending) < window:
                 try:
                     idx, (k, line) = next(it)
