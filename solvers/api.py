@@ -98,7 +98,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     start challenges the default route's answer afterwards, replacing it only with a faster
     verified extremal: ``cone_challenge``, below), ``"pointing-cones"`` (that warm start as the first
     guess: opt-in, faster but often a slower local extremal, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
-    ``NearestNeighbourModel`` or anything with ``covers(problem)`` and ``guess(problem)``),
+    ``NearestNeighbourModel`` or anything with ``covers(problem)`` — ``None`` or ``True``: it
+    covers the problem; a text saying why not, or ``False``: it does not — and ``guess(problem)``),
     a model file path, or ``None``. The learned candidates are tried alone first (the first
     verified extremal that is not slower than the eigenaxis slew wins); if none is
     verified, the classical route runs as if there were no model. ``SlewSolution.warm_start``
@@ -311,6 +312,8 @@ def _check_collocation_options(col_opts) -> None:
             collocation._check_intervals(N, in_list=isinstance(n, (list, tuple)))
     if col_opts.get("tols") is not None:
         _check_tols(col_opts["tols"])
+    collocation.check_scalar_options(**{k: v for k, v in col_opts.items()
+                                        if k not in ("n_intervals", "tols", "mesh", "extra_starts")})
 
 
 def _begins_with_collocation(prob, method, guess, warm_start) -> bool:

@@ -553,6 +553,34 @@ COARSE_DIVISOR_CONES = 8
 MAX_INTERVALS = 5000     # about 80,000 NLP variables; 10**6 exhausted memory in CasADi
 
 
+def check_scalar_options(**opts) -> None:
+    """``solve_collocation``'s scalar options given in ``opts``, each a ``ValueError`` naming it
+    (``solve`` checks its ``collocation`` dict with this whatever the route, before any NLP
+    is built: a negative ``tol`` reached IPOPT, a text ``seed`` numpy)."""
+    def integer(v):
+        return not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer))
+
+    def real(v):
+        return not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
+
+    for k, v in opts.items():
+        if k == "transcription" and v not in TRANSCRIPTIONS:
+            raise ValueError(f"transcription: unknown transcription {v!r}; choose one of {', '.join(TRANSCRIPTIONS)}")
+        if k == "tol" and not (real(v) and math.isfinite(v) and v > 0):
+            raise ValueError(f"tol: must be a positive number, got {v!r:.80}")
+        if k == "max_iter" and not (integer(v) and v >= 1):
+            raise ValueError(f"max_iter: must be a positive integer, got {v!r:.80}")
+        if k == "time_budget" and not (real(v) and v > 0 and not math.isnan(v)):
+            raise ValueError(f"time_budget: must be a positive number of seconds, got {v!r:.80}")
+        if k == "n_starts" and v is not None and not (integer(v) and v >= 1):
+            raise ValueError(f"n_starts: must be a positive integer, got {v!r:.80}")
+        if k == "seed" and not (integer(v) and 0 <= v < 2 ** 63):
+            raise ValueError(f"seed: must be an integer ≥ 0, got {v!r:.80}")
+        if k in ("verbose", "coarse", "defer_tf_tol") and not isinstance(v, (bool, np.bool_)):
+            # bool("no") is True: text or numbers here are refused, not guessed at
+            raise ValueError(f"{k}: must be True or False, got {v!r:.80}")
+
+
 def _check_intervals(N, in_list=False) -> int:
     """``N`` as an int, or ``ValueError`` naming ``n_intervals``."""
     if isinstance(N, bool) or not isinstance(N, (int, np.integer)):
@@ -798,19 +826,9 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                                n_starts=n_starts, seed=seed, coarse=coarse, mesh=mesh, tols=tols,
                                extra_starts=extra_starts)
     N = _check_intervals(n_intervals)
-    if transcription not in TRANSCRIPTIONS:
-        raise ValueError(f"transcription: unknown transcription {transcription!r}; "
-                         f"choose one of {', '.join(TRANSCRIPTIONS)}")
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (math.isfinite(tol) and tol > 0):
-        raise ValueError(f"tol: must be a positive number, got {tol!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter: must be a positive integer, got {max_iter!r}")
-    if (isinstance(time_budget, bool) or not isinstance(time_budget, (int, float))
-            or not (time_budget > 0) or math.isnan(time_budget)):
-        raise ValueError(f"time_budget: must be a positive number of seconds, got {time_budget!r}")
-    if n_starts is not None and (isinstance(n_starts, bool) or not isinstance(n_starts, (int, np.integer))
-                                 or n_starts < 1):
-        raise ValueError(f"n_starts: must be a positive integer, got {n_starts!r}")
+    check_scalar_options(transcription=transcription, tol=tol, max_iter=max_iter, time_budget=time_budget,
+                         n_starts=n_starts, seed=seed, verbose=verbose, coarse=coarse,
+                         defer_tf_tol=defer_tf_tol)
     if guess is not None and not isinstance(guess, (SlewSolution, Guess)):
         raise ValueError(f"guess: expected a SlewSolution, a solvers.Guess or None, got {type(guess).__name__}")
     tols_all = dict(DEFAULT_TOLS)

@@ -97,6 +97,12 @@ class Guess:
                 raise ValueError("guess.switch_times: expected a list of 3 arrays (one per axis)")
             self.switch_times = [_numbers(f"guess.switch_times[{i}]", s).ravel()
                                  for i, s in enumerate(self.switch_times)]
+            for i, s in enumerate(self.switch_times):
+                if not np.all(np.isfinite(s)):
+                    raise ValueError(f"guess.switch_times[{i}]: all entries must be finite, got {s.tolist()!r:.80}")
+        if isinstance(self.candidates, (str, bytes)) or not isinstance(self.candidates, (list, tuple)):
+            raise ValueError(f"guess.candidates: expected a list of Guess objects or functions returning one, "
+                             f"got {type(self.candidates).__name__}")
         if self.u_first is not None:
             u = _numbers("guess.u_first", self.u_first)
             if u.shape != (3,) or not np.all(np.isfinite(u)):

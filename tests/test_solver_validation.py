@@ -86,6 +86,15 @@ def test_bad_segments():
     ("collocation", {"bogus": 1}, r"^collocation: unknown option\(s\) \['bogus'\]"),
     ("collocation", {"n_intervals": 10 ** 6}, r"^n_intervals: at most 5,000"),
     ("collocation", {"n_intervals": "x"}, r"^n_intervals: expected an integer"),
+    # a fuzz run: a negative tol reached IPOPT (a CasADi RuntimeError), a text seed numpy, and
+    # under auto, which did not reach collocation, a text tol went unchecked; "no" read as True
+    ("collocation", {"tol": -1}, r"^tol: must be a positive number"),
+    ("collocation", {"tol": "x"}, r"^tol: must be a positive number"),
+    ("collocation", {"max_iter": "x"}, r"^max_iter: must be a positive integer"),
+    ("collocation", {"seed": "x"}, r"^seed: must be an integer ≥ 0"),
+    ("collocation", {"coarse": "no"}, r"^coarse: must be True or False, got 'no'"),
+    ("collocation", {"verbose": 1}, r"^verbose: must be True or False"),
+    ("collocation", {"defer_tf_tol": None}, r"^defer_tf_tol: must be True or False"),
 ])
 def test_bad_options_are_refused_whatever_the_route(key, bad, match):
     """Found by a fuzz run: these raised TypeError, ZeroDivisionError or CasADi's bad_alloc deep
@@ -133,6 +142,11 @@ def test_guess_fields_that_are_not_numbers_are_refused_by_name():
     with pytest.raises(ValueError, match=r"^guess.u_first: expected numbers"):
         solvers.Guess(costate0=np.ones(7), tf=1.0, u_first=[1, -1, True])
     assert solvers.Guess(costate0=np.ones(7), tf=np.float32(2.0)).tf == 2.0
+    # candidates=None raised a bare TypeError inside solve; NaN switch times were taken
+    with pytest.raises(ValueError, match=r"^guess.candidates: expected a list"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, candidates=None)
+    with pytest.raises(ValueError, match=r"^guess.switch_times\[0\]: all entries must be finite"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[float("nan")], [], []])
 
 
 def test_guess_of_wrong_type():

@@ -293,6 +293,30 @@ def test_a_model_that_raises_falls_back_and_records_the_error():
     assert s.success and "weights went NaN" in s.warm_start["error"] and s.warm_start["succeeded"] is False
 
 
+@pytest.mark.parametrize("answer, covered", [(True, True), (np.True_, True), (False, False), ("no", False)])
+def test_a_user_model_may_say_it_covers_a_problem_with_a_boolean(answer, covered):
+    """A demanding user's report: ``covers()`` returning True was read as "not covered, reason
+    True" (the package's rule: None or a reason), and the model was never used."""
+    r = _exact()[1]
+
+    class Mine:
+        name = "mine"
+
+        def covers(self, problem):
+            return answer
+
+        def guess(self, problem):
+            return Guess(np.asarray(r["costate0"], float), r["tf"], [np.asarray(s) for s in r["switch_times"]],
+                         np.asarray(r["u_first"], float), source="learned")
+    s = solve(r["problem"], method="indirect", warm_start=Mine())
+    assert s.success and s.warm_start["covered"] is covered
+    if covered:
+        assert s.warm_start["model"] == "mine" and s.warm_start["succeeded"] is True
+        assert s.tf == pytest.approx(r["tf"], rel=1e-9)
+    else:
+        assert s.warm_start["reason"] in ("mine.covers() returned False", "no")
+
+
 def test_a_model_returning_something_else_is_a_clear_error():
     class Odd:
         name = "odd"

@@ -10,6 +10,8 @@ from __future__ import annotations
 import functools
 import os
 
+import numpy as np
+
 from .features import (FEATURE_NAMES, N_FEATURES, CanonicalForm, canonical_form, features,
                        solution_from_canonical, solution_to_canonical)
 from .model import FORMAT, FORMAT_VERSION, ModelFileError, WarmStartModel
@@ -145,6 +147,33 @@ class _ConeModelOptIn:
         raise ValueError(self.REASON)
 
 
+class _UserModel:
+    """A user's model with ``covers()`` read either way: the package's rule (``None`` or ``""``:
+    covered; a text: the reason it is not) or a boolean (``True``: covered). A user model
+    answering ``True`` had been taken as "not covered, reason True" and never used."""
+
+    def __init__(self, model):
+        self.model = model
+        self.name = getattr(model, "name", type(model).__name__)
+
+    def covers(self, problem):
+        why = self.model.covers(problem)
+        if why is True or isinstance(why, np.bool_) and bool(why):
+            return None
+        if why is False or isinstance(why, np.bool_):
+            return f"{self.name}.covers() returned False"
+        return why or None
+
+    def guess(self, problem):
+        return self.model.guess(problem)
+
+    def __getattr__(self, attr):
+        # the model's other attributes (``last_inference_s``, a card) as they are
+        if attr == "model":
+            raise AttributeError(attr)
+        return getattr(self.model, attr)
+
+
 def resolve(warm_start, problem=None):
     """``"default"`` → the shipped full-attitude warm start (a pointing problem with cones gets no
     guess by default, with the reason recorded); ``"pointing-cones"`` → the shipped
@@ -163,7 +192,9 @@ def resolve(warm_start, problem=None):
     if isinstance(warm_start, (str, os.PathLike)):
         return load_model(warm_start)
     if hasattr(warm_start, "guess") and hasattr(warm_start, "covers"):
-        return warm_start
+        if type(warm_start).__module__.startswith(__name__):
+            return warm_start
+        return _UserModel(warm_start)
     raise ValueError(f"warm_start: expected 'default', 'pointing-cones', None, a model file path or a model with "
                      f"guess() and covers(), got {type(warm_start).__name__}")
 
