@@ -2,11 +2,11 @@
 
 Entry point: ``solvers.solve(problem, method=..., guess=..., **options) -> SlewSolution``.
 """
-from .api import METHODS, solve
+from .api import METHODS, check_options, solve
 from .guesses import Guess, eigenaxis_guess
 from .solution import STATUS_MESSAGES, SlewSolution
 from .eigenaxis import eigenaxis_slew, EigenaxisSlew
 from .kernel_loading import load_kernels
 
-__all__ = ["solve", "METHODS", "Guess", "eigenaxis_guess", "SlewSolution", "STATUS_MESSAGES",
+__all__ = ["solve", "check_options", "METHODS", "Guess", "eigenaxis_guess", "SlewSolution", "STATUS_MESSAGES",
            "eigenaxis_slew", "EigenaxisSlew", "load_kernels"]

@@ -169,9 +169,16 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
         return _solve(problem, method, guess, warm_start, **options)
 
 
-def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
-    """``solve`` with the BLAS libraries at one thread (``blas_threads``)."""
-    prob = SlewProblem.from_dict(problem)   # a SlewProblem passes through
+def check_options(method="auto", **options) -> None:
+    """The checks ``solve`` makes of ``method`` and its options before solving, without a
+    problem: a ``ValueError`` naming the first bad one (``slew generate`` checks its
+    ``--solve-options`` with this before it writes any record)."""
+    _checked_options(method, None, dict(options))
+
+
+def _checked_options(method, guess, options):
+    """``(use_table, check_local, cone_challenge, fallback, col_opts)`` popped from ``options``
+    after every check that does not need the problem."""
     if method not in METHODS:
         raise ValueError(f"method: unknown method {method!r}; choose one of {', '.join(METHODS)}")
     unknown = set(options) - _OPTIONS
@@ -203,6 +210,17 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     if fallback is not None and method in ("collocation", "eigenaxis"):
         raise ValueError(f"fallback: applies to the 'auto', 'indirect' and 'multiple-shooting' routes, "
                          f"not method={method!r}")
+    col_opts = options.pop("collocation", None) or {}
+    if not isinstance(col_opts, dict):
+        raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
+    _check_collocation_options(col_opts)
+    return use_table, check_local, cone_challenge, fallback, col_opts
+
+
+def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
+    """``solve`` with the BLAS libraries at one thread (``blas_threads``)."""
+    prob = SlewProblem.from_dict(problem)   # a SlewProblem passes through
+    use_table, check_local, cone_challenge, fallback, col_opts = _checked_options(method, guess, options)
     reserved = 0.0
     if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None:
         # the fallback is planned after the route: its time comes out of the route's budget, so
@@ -210,10 +228,6 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         budget = float(options["time_budget"])
         reserved = min(FALLBACK_RESERVE, FALLBACK_RESERVE_SHARE * budget)
         options["time_budget"] = budget - reserved
-    col_opts = options.pop("collocation", None) or {}
-    if not isinstance(col_opts, dict):
-        raise ValueError(f"collocation: expected a dict of solve_collocation options, got {col_opts!r}")
-    _check_collocation_options(col_opts)
     if method != "eigenaxis":
         # an infeasible problem is an input error, found before any loading; the grid test
         # (about 0.1 s for three mutually overlapping cones) is remembered, not repeated inside

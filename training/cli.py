@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     except ValueError as e:  # bad input: one clear line, no traceback
         print(f"slew {args.command}: error: {e}", file=sys.stderr)
         return 2
-    except FileNotFoundError as e:
+    except OSError as e:     # a file that cannot be read or written: one line too
         print(f"slew {args.command}: error: {e}", file=sys.stderr)
         return 2
 

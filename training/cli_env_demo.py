@@ -18,6 +18,10 @@ def run(args):
 
     if args.steps < 1:
         raise ValueError(f"--steps: must be >= 1, got {args.steps}")
+    if args.seed < 0:
+        raise ValueError(f"--seed: must be >= 0, got {args.seed}")
+    if not args.out.lower().endswith(".png"):
+        raise ValueError(f"--out: expected a .png file name, got {args.out!r}")
     env = gym.make(slew_env.ENV_ID, task_distribution=args.family, render_mode="rgb_array",
                    terminate_on_violation=False)
     env.action_space.seed(args.seed)

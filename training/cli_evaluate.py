@@ -1,6 +1,7 @@
 """``slew evaluate``: the warm-start model against the classical guesses on held-out problems."""
 from __future__ import annotations
 
+import math
 import os
 
 
@@ -29,6 +30,17 @@ def run(args) -> int:
     from training.warmstart.evaluate import evaluate
     if args.n < 1:
         raise ValueError(f"--n: must be ≥ 1, got {args.n}")
+    # a fuzz run: a negative or zero budget, negative --baseline-n or --workers 0 ran and wrote
+    # a report that looked valid (baselines at 0 % or "not applicable")
+    for flag, v in (("--budget", args.budget), ("--warm-budget", args.warm_budget)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{flag}: must be a positive number of seconds, got {v}")
+    if args.baseline_n < 0:
+        raise ValueError(f"--baseline-n: must be ≥ 0, got {args.baseline_n}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers: must be ≥ 1, got {args.workers}")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"--out: {args.out!r} exists and is not a directory")
     for path in args.train_data or []:
         if not os.path.exists(path):
             raise FileNotFoundError(f"--train-data: no such file: {path}")

@@ -84,6 +84,18 @@ class GenerationSpec:
         if ":" not in self.solve_fn:
             raise ValueError(f"solve_fn: expected 'module:function', got {self.solve_fn!r}")
         self.distribution()   # validates family and overrides now, with the TaskDistribution's errors
+        if self.solve_fn == DEFAULT_SOLVE_FN:
+            # bad options would otherwise become a rejection record at every index, kept for
+            # good by a resumed run (a fuzz run: exit 0 with a dataset of rejections)
+            import solvers
+            opts = dict(self.solve_options)
+            method = opts.pop("method", "auto")
+            for key in ("warm_start", "guess"):
+                opts.pop(key, None)
+            try:
+                solvers.check_options(method, **opts)
+            except ValueError as e:
+                raise ValueError(f"solve_options: {e}") from None
 
     def distribution(self):
         from slew_env.tasks import TaskDistribution
