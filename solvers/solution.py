@@ -128,7 +128,11 @@ class SlewSolution:
     _tf_tol_pending: Optional[Callable] = field(default=None, repr=False, compare=False)
 
     def control(self, t):
-        """Torque at time(s) ``t`` (problem units). Bang-bang: exact from the switch times."""
+        """Torque at time(s) ``t`` (problem units). Bang-bang: exact from the switch times.
+
+        Defined on ``[0, tf]`` only: outside it the law is extended (the first or last arc's
+        torque, the samples' end values), not switched off; a simulation that runs past ``tf``
+        must stop torquing itself."""
         if self._control is None:
             raise ValueError("control: this solution has no trajectory")
         return self._control(t)

@@ -22,6 +22,14 @@ def test_generate_checks_its_solve_options_before_writing(tmp_path, capsys, extr
     assert not out.exists()
 
 
+def test_generate_makes_the_output_directory(tmp_path):
+    # a user's report: the README's `slew generate ... -o data/a.jsonl` failed on a fresh clone
+    out = tmp_path / "data" / "a.jsonl"
+    assert main(["generate", "--family", "full-attitude", "--n", "1", "--workers", "1", "--no-progress",
+                 "-o", str(out)]) == 0
+    assert len(out.read_text().splitlines()) == 2          # the metadata line and one record
+
+
 @pytest.mark.parametrize("extra, needle", [
     (["--budget", "-1"], "--budget: must be a positive number of seconds"),
     (["--budget", "nan"], "--budget: must be a positive number of seconds"),

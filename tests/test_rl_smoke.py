@@ -4,6 +4,7 @@ Budget: the whole file well under two minutes on two cores.
 """
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -94,6 +95,20 @@ def test_ppo_trains_saves_reloads_and_evaluates(ppo_run):
     saved = VecNormalize.load(str(out / "vecnormalize.pkl"), vn.venv)
     np.testing.assert_array_equal(saved.obs_rms.mean, vn.obs_rms.mean)
     assert vn.obs_rms.count > 4096
+
+
+def test_resume_without_out_goes_on_in_the_run_directory(ppo_run):
+    # a user's report: without --out a resumed run went to runs/ppo-full-attitude-seedN, leaving
+    # the run's own train_info.json at its old count and writing no previous_runs
+    import shutil
+    tmp, out, info = ppo_run
+    run = tmp / "own_dir_copy"
+    shutil.copytree(out, run)
+    info2 = train("ppo", "full-attitude", resume=run, timesteps=256)
+    assert Path(info2["out"]) == run
+    saved = json.loads((run / "train_info.json").read_text())
+    assert saved["num_timesteps"] == info2["num_timesteps"] > info["num_timesteps"]
+    assert saved["previous_runs"][0]["num_timesteps"] == info["num_timesteps"]
 
 
 def test_resume_continues_the_timestep_count(ppo_run):

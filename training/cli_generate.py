@@ -22,6 +22,7 @@ options or a file that cannot be continued.
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 FAMILY_CHOICES = ("full-attitude", "pointing-cones")   # == slew_env.tasks.FAMILIES (not imported: fast --help)
@@ -105,6 +106,8 @@ def run(args):
     from .generate import generate
 
     spec = build_spec(args)
+    # as train and train-rl make their --out: the README's `-o data/a.jsonl` on a fresh clone
+    os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)
     s = generate(spec, args.output, workers=args.workers, backend=args.backend, address=args.address,
                  progress=not args.no_progress, fsync=not args.no_fsync)
     out = sys.stdout

@@ -296,7 +296,13 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     if family not in FAMILIES:
         raise ValueError(f"--family: expected one of {', '.join(FAMILIES)}, got {family!r}")
     pdir = Path(policy) if Path(policy).is_dir() else Path(policy).parent
-    out = Path(out) if out is not None else pdir / f"eval-{family}-seed{seed}"
+    if out is None:
+        # beside a run's own policy; a shipped policy's report goes to runs/, not into the
+        # installed package
+        shipped = Path(__file__).resolve().parent / "policies"
+        inside = shipped in pdir.resolve().parents or pdir.resolve() == shipped
+        out = (Path("runs") / f"eval-{pdir.name}-{family}-seed{seed}") if inside else pdir / f"eval-{family}-seed{seed}"
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
 
     t_solve = time.perf_counter()
@@ -454,8 +460,8 @@ def report_markdown(results: dict, with_plot: bool) -> str:
               f"| episodes the capture law finished | {s['n_captured']} |",
               f"| final time tf_policy at success, median / mean | {_f(s['tf_policy_median'])} / {_f(s['tf_policy_mean'])} |",
               f"| solver: verified optimum / failed / refused | {s['solver_ok']} / {s['solver_failed']} / {s['solver_refused']} |",
-              f"| of the verified optima: exact extremals (indirect) / collocation answers | {s['solver_ok_exact']} / "
-              f"{s['solver_ok'] - s['solver_ok_exact']} |",
+              f"| of the verified optima: exact extremals (indirect) / approximate answers (switch-time or "
+              f"collocation) | {s['solver_ok_exact']} / {s['solver_ok'] - s['solver_ok_exact']} |",
               f"| success rate where the solver verified an optimum | "
               f"{_f(None if s['success_rate_where_solver_ok'] is None else 100 * s['success_rate_where_solver_ok'], '.1f')} % |",
               f"| tf_policy / tf_optimal: n | {s['ratio_n']} |",

@@ -421,6 +421,10 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     seed = 0 if seed is None else int(seed)
     cfg["seed"] = seed
     n = int(cfg["n_envs"])
+    if out is None and resume_files and resume_files[3] is not None:
+        # a resumed run goes on in its own directory, where its train_info.json and curves are
+        # (it had gone to runs/ALGO-FAMILY-seedN, with no previous_runs)
+        out = resume_files[3]
     out = Path(out) if out is not None else Path("runs") / f"{algo}-{family}-seed{seed}"
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
