@@ -12,7 +12,7 @@ from .core import env_kernels as _k
 from .core import task as _t
 from .core.quaternion import qrotate
 from .problem import SlewProblem
-from .tasks import TaskDistribution, draw_task
+from .tasks import TaskDistribution, _finite, _real, _whole, draw_task  # noqa: F401 (_real re-exported)
 
 from . import DEFAULT_MAX_EPISODE_STEPS, ENV_ID  # noqa: F401 (re-exported)
 # A cone counts as violated when the sensor is inside it by more than this (rad):
@@ -50,28 +50,69 @@ def observation_bounds(max_cones: int):
     return low, high
 
 
-def _real(v) -> bool:
-    """A real number, not a boolean or text (``float()`` would take ``True`` as 1, ``"1"`` as 1)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+def as_actions(name, value, shape) -> np.ndarray:
+    """``value`` as an array of real numbers of ``shape``, or a ``ValueError`` naming ``name``.
+
+    Text, booleans, complex numbers, ``None`` and other non-numbers are refused (numpy would
+    parse ``"1"`` as 1, take ``True`` as 1 and drop an imaginary part). NaN and inf pass: the
+    kernels saturate them. Arrays of a real dtype are checked by dtype only (no per-element loop).
+    """
+    expected = f"real numbers of shape {shape}"
+    if isinstance(value, np.ndarray):
+        arr = value
+    else:
+        if value is None or isinstance(value, (str, bytes, dict, set)):
+            raise ValueError(f"{name}: expected {expected}, got {value!r:.80}")
+        try:
+            arr = np.asarray(value)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{name}: expected {expected}, got {value!r:.80}") from None
+        if isinstance(value, (list, tuple)) and arr.dtype.kind in "fiu":
+            # numpy reads [True, 0.5, 0] as floats: look at the entries of a (small) list
+            flat = np.asarray(value, dtype=object).ravel()
+            if not all(_real(v) or isinstance(v, np.ndarray) and v.dtype.kind in "fiu" for v in flat):
+                raise ValueError(f"{name}: expected {expected}, got {value!r:.80}")
+    if arr.dtype.kind == "O" and all(_real(v) for v in arr.ravel()):
+        arr = arr.astype(np.float64)
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: expected {expected}, got an array of dtype {arr.dtype} {value!r:.80}")
+    if arr.shape != shape:
+        raise ValueError(f"{name}: expected {expected}, got shape {arr.shape}")
+    return arr
 
 
-def _whole(name, v, lo):
-    """``v`` as an int ``>= lo``, or a ``ValueError`` naming ``name``."""
-    if not (_real(v) and math.isfinite(v) and int(v) == v and v >= lo):
-        raise ValueError(f"{name}: must be a whole number >= {lo}, got {v!r:.80}")
-    return int(v)
+def check_seed(seed):
+    """``seed`` (``None`` or a whole number >= 0) as an int or ``None``; ``ValueError`` naming ``seed``."""
+    if seed is None:
+        return None
+    if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)) and seed >= 0):
+        raise ValueError(f"seed: expected None or a whole number >= 0, got {seed!r:.80}")
+    return int(seed)
+
+
+def check_options(options, keys) -> dict:
+    """``options`` (``None`` or a dict with keys among ``keys``) as a dict."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ValueError(f"options: expected None or a dict, got {options!r:.80}")
+    unknown = [k for k in options if k not in keys]
+    if unknown:
+        raise ValueError(f"options: unknown key(s) {unknown!r:.120}; use "
+                         + " or ".join(repr(k) for k in keys))
+    return dict(options)
 
 
 def make_config(control_dt, substeps, success_bonus, violation_penalty, terminate_on_violation,
                 shaping, att_tol_deg, rate_tol, max_episode_steps=None) -> np.ndarray:
     """Validate the environment arguments and pack them for the kernels."""
     def positive(name, v):
-        if not (_real(v) and math.isfinite(v) and v > 0.0):
+        if not (_finite(v) and v > 0.0):
             raise ValueError(f"{name}: must be a positive finite number, got {v!r:.80}")
         return float(v)
 
     def nonneg(name, v):
-        if not (_real(v) and math.isfinite(v) and v >= 0.0):
+        if not (_finite(v) and v >= 0.0):
             raise ValueError(f"{name}: must be a finite number >= 0, got {v!r:.80}")
         return float(v)
 
@@ -138,7 +179,8 @@ class SlewEnv(gym.Env):
     it (``dynamics.torque_from_action``). It is held for the whole control step.
     Out-of-range values are saturated, not rejected; a NaN component gives zero
     torque on that axis, so no action can put NaN into the state. An action of
-    the wrong shape raises ``ValueError``.
+    the wrong shape, or not of real numbers (text, booleans, complex numbers,
+    ``None``), raises ``ValueError`` naming ``action``.
 
     **Observation space** — ``Box(float32)`` of length ``27 + 6·max_cones``
     (51 for the default ``max_cones=4``). Body frame = current body axes.
@@ -215,6 +257,10 @@ class SlewEnv(gym.Env):
     - truncated: only by the ``TimeLimit`` wrapper (``max_episode_steps=400``
       in the registration of ``slew_env/Slew-v0``).
 
+    A terminated episode is over: ``step()`` then raises
+    ``gymnasium.error.ResetNeeded`` until ``reset()`` (as it does before the first
+    reset), rather than integrating on and paying the bonus or penalty again.
+
     ``info`` keys: ``is_success``, ``violation`` (any sub-step of this step),
     ``min_cone_margin`` (smallest margin over this step's sub-steps, rad;
     ``inf`` without cones), ``attitude_error`` (rad), ``rate_error``
@@ -253,9 +299,10 @@ class SlewEnv(gym.Env):
                  violation_penalty: float = 10.0, terminate_on_violation: bool = True,
                  shaping: float = 1.0, att_tol_deg: float = 1.0, rate_tol: float = 0.02,
                  render_mode: Optional[str] = None):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+        if render_mode is not None and not (isinstance(render_mode, str)
+                                            and render_mode in self.metadata["render_modes"]):
             raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r}")
+                             f"got {render_mode!r:.80}")
         self.render_mode = render_mode
         self.max_cones = check_max_cones(max_cones)
         self.task_distribution = resolve_distribution(task_distribution, self.max_cones)
@@ -278,18 +325,15 @@ class SlewEnv(gym.Env):
         self._act = np.zeros(3)
         self._problem: Optional[SlewProblem] = None
         self._has_reset = False
+        self._terminated = False
         self._history = None
         self._renderer = None
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        seed = check_seed(seed)
+        problem = check_options(options, ("problem",)).get("problem")
         super().reset(seed=seed)
-        problem = None
-        if options:
-            unknown = set(options) - {"problem"}
-            if unknown:
-                raise ValueError(f"options: unknown key(s) {sorted(unknown)}; use {{'problem': ...}}")
-            problem = options.get("problem")
         if problem is not None:
             self._problem, self._task[:] = problem_to_task(problem, self.max_cones)
         else:
@@ -297,6 +341,7 @@ class SlewEnv(gym.Env):
             self._problem = None
         _k.reset_env(self._task, self._st, self._cfg, self._obs, self._out)
         self._has_reset = True
+        self._terminated = False
         if self.render_mode is not None:
             self._history = _History()
             self._history.record(self._task, self._st, self._out)
@@ -307,14 +352,14 @@ class SlewEnv(gym.Env):
     def step(self, action):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
+        if self._terminated:
+            raise gym.error.ResetNeeded("step() after the episode terminated (success, or a violation with "
+                                        "terminate_on_violation); call reset() first")
         act = self._act
-        if type(action) is np.ndarray and action.shape == (3,):
+        if type(action) is np.ndarray and action.shape == (3,) and action.dtype.kind in "fiu":
             act[:] = action
         else:
-            arr = np.asarray(action, dtype=np.float64)
-            if arr.shape != (3,):
-                raise ValueError(f"action: expected shape (3,), got {arr.shape}")
-            act[:] = arr
+            act[:] = as_actions("action", action, (3,))
         _k.step_env(self._task, self._st, act, self._cfg, self._obs, self._out)
         reward, terminated, _, success, violation, margin, att, rate_err, time = \
             self._out[:_k.R_TORQUE].tolist()
@@ -325,7 +370,8 @@ class SlewEnv(gym.Env):
             self._history.record(self._task, self._st, self._out)
             if self.render_mode == "human":
                 self.render()
-        return self._obs.copy(), reward, terminated > 0.5, False, info
+        self._terminated = terminated > 0.5
+        return self._obs.copy(), reward, self._terminated, False, info
 
     def _info(self) -> dict:
         o = self._out

@@ -23,7 +23,7 @@ import numpy as np
 
 from .core import sampling as _s
 from .core import task as _t
-from .problem import SlewProblem
+from .problem import MAX_AXIS_SPREAD, SlewProblem, _vector
 
 # Uniforms per sampling attempt. A failed attempt (cone rejections exhausted the
 # block) is retried from scratch on the next block of the same generator.
@@ -35,13 +35,37 @@ _INERTIA_MODES = {"fixed": _s.INERTIA_FIXED, "symmetric": _s.INERTIA_SYMMETRIC,
                   "asymmetric": _s.INERTIA_ASYMMETRIC}
 
 
-def _pair(name, value, lo_bound=None, hi_bound=None, integer=False):
+def _real(v) -> bool:
+    """A real number, not a boolean or text (``float()`` would take ``True`` as 1, ``"1"`` as 1)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _finite(v) -> bool:
+    """A finite real number (a Python int too large for a float is not)."""
     try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a (low, high) pair, got {value!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
-        raise ValueError(f"{name}: need finite low <= high, got ({lo:g}, {hi:g})")
+        return _real(v) and math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+def _whole(name, v, lo, hi=2 ** 53):
+    """``v`` as an int in ``[lo, hi]``, or a ``ValueError`` naming ``name``."""
+    if not (_real(v) and (isinstance(v, (int, np.integer)) or (math.isfinite(v) and int(v) == v))
+            and v >= lo):
+        raise ValueError(f"{name}: must be a whole number >= {lo}, got {v!r:.80}")
+    if v > hi:
+        raise ValueError(f"{name}: must be a whole number <= {hi}, got {v!r:.80}")
+    return int(v)
+
+
+def _pair(name, value, lo_bound=None, hi_bound=None, integer=False):
+    if not (isinstance(value, (list, tuple, np.ndarray)) and len(value) == 2
+            and all(_real(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value))):
+        raise ValueError(f"{name}: expected a (low, high) pair of numbers, got {value!r:.80}")
+    lo, hi = value.tolist() if isinstance(value, np.ndarray) else value
+    if not (_finite(lo) and _finite(hi)) or lo > hi:
+        raise ValueError(f"{name}: need finite low <= high, got ({lo!r:.40}, {hi!r:.40})")
+    lo, hi = float(lo), float(hi)
     if lo_bound is not None and lo < lo_bound or hi_bound is not None and hi > hi_bound:
         raise ValueError(f"{name}: must lie in [{lo_bound}, {hi_bound}], got ({lo:g}, {hi:g})")
     if integer:
@@ -52,19 +76,22 @@ def _pair(name, value, lo_bound=None, hi_bound=None, integer=False):
 
 
 def _positive3(name, value):
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
-        raise ValueError(f"{name}: expected one or three positive finite numbers, got {value!r}")
-    return tuple(float(v) for v in arr)
+    # the problem's own check: booleans and text refused, one number broadcast to three
+    if value is None:
+        raise ValueError(f"{name}: expected one or three positive numbers, got None")
+    return tuple(_vector(name, value, 3, positive=True, allow_scalar=True).tolist())
+
+
+def _number_in(name, value, lo, hi, hi_open=False, what=None):
+    """``value`` as a float in ``[lo, hi]`` (``[lo, hi)`` if ``hi_open``), or a ``ValueError`` naming ``name``."""
+    interval = f"[{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    if not (_finite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
+        raise ValueError(f"{name}: must be a number in {interval}{what or ''}, got {value!r:.80}")
+    return float(value)
 
 
 def _probability(name, value):
-    v = float(value)
-    if not 0.0 <= v <= 1.0:
-        raise ValueError(f"{name}: must lie in [0, 1], got {v:g}")
-    return v
+    return _number_in(name, value, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -119,6 +146,12 @@ class TaskDistribution:
 
     Only start and target are guaranteed clear of the cones; cones may overlap,
     and no check is made that some path between them stays clear.
+
+    Every field is checked by name on construction (numbers written as text,
+    booleans, ``None``, NaN and inf are refused), and so is a distribution that
+    could draw a body ``SlewProblem`` refuses: acceleration bounds
+    ``u_max,i / J_i`` that can differ by more than ``slew_env.problem.MAX_AXIS_SPREAD``
+    over the inertias the mode can draw.
     """
 
     angle_deg: tuple = (10.0, 180.0)
@@ -142,7 +175,7 @@ class TaskDistribution:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         set_("angle_deg", _pair("angle_deg", self.angle_deg, 0.0, 180.0))
         set_("pointing_prob", _probability("pointing_prob", self.pointing_prob))
-        if self.inertia_mode not in _INERTIA_MODES:
+        if not isinstance(self.inertia_mode, str) or self.inertia_mode not in _INERTIA_MODES:
             raise ValueError(f"inertia_mode: expected one of {list(_INERTIA_MODES)}, "
                              f"got {self.inertia_mode!r}")
         set_("inertia", _positive3("inertia", self.inertia))
@@ -156,26 +189,20 @@ class TaskDistribution:
         set_("symmetric_prob", p_sym)
         set_("torque_max", _positive3("torque_max", self.torque_max))
         set_("torque_norm", self._check_norm(self.torque_norm))
-        axis = np.asarray(self.sensor_axis, dtype=float)
-        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-12:
-            raise ValueError(f"sensor_axis: expected a non-zero 3-vector, got {self.sensor_axis!r}")
-        set_("sensor_axis", tuple(float(v) for v in axis / np.linalg.norm(axis)))
+        set_("sensor_axis", tuple(_vector("sensor_axis", self.sensor_axis, 3, unit=True).tolist()))
         set_("n_cones", _pair("n_cones", self.n_cones, 0, None, integer=True))
         set_("cone_half_angle_deg", _pair("cone_half_angle_deg", self.cone_half_angle_deg, 0.0, 180.0))
         if self.cone_half_angle_deg[0] <= 0.0:
             raise ValueError(f"cone_half_angle_deg: must be positive, got {self.cone_half_angle_deg}")
-        clear = float(self.cone_clearance_deg)
-        if not 0.0 <= clear < 90.0:
-            raise ValueError(f"cone_clearance_deg: must lie in [0, 90), got {clear:g}")
+        clear = _number_in("cone_clearance_deg", self.cone_clearance_deg, 0.0, 90.0, hi_open=True)
         set_("cone_clearance_deg", clear)
         set_("path_cone_prob", _probability("path_cone_prob", self.path_cone_prob))
-        offset = float(self.path_offset)
-        if not 0.0 <= offset < 1.0:
-            raise ValueError(f"path_offset: must lie in [0, 1) so the arc crosses the cone, got {offset:g}")
-        set_("path_offset", offset)
-        if int(self.max_cone_tries) < 1:
-            raise ValueError(f"max_cone_tries: must be >= 1, got {self.max_cone_tries}")
-        set_("max_cone_tries", int(self.max_cone_tries))
+        set_("path_offset", _number_in("path_offset", self.path_offset, 0.0, 1.0, hi_open=True,
+                                       what=" so the arc crosses the cone"))
+        set_("max_cone_tries", _whole("max_cone_tries", self.max_cone_tries, 1))
+        if not isinstance(self.name, str):
+            raise ValueError(f"name: expected a string, got {self.name!r:.80}")
+        self._check_axis_spread()
         if self.n_cones[1] > 0:
             # The first cone sits on the start→target arc with both ends clear.
             need = 2.0 * (self.cone_half_angle_deg[0] + clear)
@@ -184,6 +211,30 @@ class TaskDistribution:
                     f"cone_half_angle_deg: a cone of {self.cone_half_angle_deg[0]:g}° with "
                     f"{clear:g}° clearance needs slews above {need:g}°, but angle_deg allows at most "
                     f"{self.angle_deg[1]:g}°")
+
+    def _check_axis_spread(self):
+        """Refuse a distribution that can draw a body ``SlewProblem`` refuses: per-axis
+        acceleration bounds ``u_max,i / J_i`` differing by more than ``MAX_AXIS_SPREAD``."""
+        u = np.asarray(self.torque_max)
+        u_spread = float(u.max() / u.min())
+        if self.inertia_mode == "fixed":
+            accel = u / np.asarray(self.inertia)
+            worst, fields = float(accel.max() / accel.min()), "inertia, torque_max"
+            how = f"inertia {list(self.inertia)}"
+        elif self.inertia_mode == "symmetric":
+            worst, fields, how = u_spread, "torque_max", "inertia (1, 1, 1)"
+        else:
+            # each J_i is drawn independently in [lo, hi]: the largest bound over the smallest is
+            # at worst u_max/u_min with the strong axis at J = lo and the weak one at J = hi (the
+            # symmetric bodies drawn with symmetric_prob spread by u_max/u_min only)
+            lo, hi = self.inertia_ratio
+            worst = u_spread * hi / lo
+            fields, how = "inertia_ratio, torque_max", f"J_i drawn in [{lo:g}, {hi:g}]"
+        if worst > MAX_AXIS_SPREAD:
+            raise ValueError(
+                f"{fields}: the axes' acceleration bounds u_max,i / J_i can differ by a factor {worst:.3g} "
+                f"(torque_max {list(self.torque_max)}, {how}), beyond the {MAX_AXIS_SPREAD:g} that "
+                "SlewProblem accepts")
 
     @staticmethod
     def _check_norm(value):
@@ -196,8 +247,9 @@ class TaskDistribution:
     @classmethod
     def family(cls, name: str, **overrides) -> "TaskDistribution":
         """A named family, optionally with some fields changed."""
-        if name not in FAMILIES:
-            raise ValueError(f"task_distribution: unknown family {name!r}; known: {sorted(FAMILIES)}")
+        if not isinstance(name, str) or name not in FAMILIES:
+            raise ValueError(f"task_distribution: unknown family {name!r:.80}; known: {sorted(FAMILIES)}")
+        _check_fields(overrides)
         return dataclasses.replace(FAMILIES[name], **overrides)
 
     @classmethod
@@ -210,6 +262,7 @@ class TaskDistribution:
         if isinstance(spec, dict):
             d = dict(spec)
             base = d.pop("family", None)
+            _check_fields(d)
             return cls.family(base, **d) if base is not None else cls(**d)
         raise ValueError(f"task_distribution: expected a family name, a TaskDistribution or a dict, "
                          f"got {type(spec).__name__}")
@@ -253,6 +306,14 @@ class TaskDistribution:
     def sample(self, rng=None) -> SlewProblem:
         """One random problem, validated as a ``SlewProblem``."""
         return SlewProblem.from_task_array(self.sample_task_array(rng))
+
+
+def _check_fields(d):
+    """Unknown or non-string keys: a ``ValueError``, not the dataclass's ``TypeError``."""
+    known = [f.name for f in dataclasses.fields(TaskDistribution)]
+    unknown = [k for k in d if k not in known]
+    if unknown:
+        raise ValueError(f"task_distribution: unknown field(s) {unknown!r:.120}; known fields are {known}")
 
 
 def _rng(rng):

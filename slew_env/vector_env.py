@@ -18,6 +18,11 @@ seeds, problems and actions, the batch returns exactly what
 the same problem in every copy; ``options={"reset_mask": mask}`` resets only
 the masked copies. Infos are a dict of arrays with ``_key`` masks, every key
 present for every copy (the same keys as ``SlewEnv``'s info).
+
+``step(actions)`` takes real numbers of shape ``(num_envs, 3)``, one action per
+copy (an action is not broadcast to every copy); any other shape or dtype (text,
+booleans, complex numbers) raises ``ValueError`` naming ``actions``. A copy that
+terminated is not stepped again: its next step is the autoreset above.
 """
 from __future__ import annotations
 
@@ -32,9 +37,9 @@ from numba import njit
 
 from .core import env_kernels as _k
 from .core import task as _t
-from .env import (DEFAULT_MAX_EPISODE_STEPS, check_max_cones, make_config, observation_bounds,
-                  problem_to_task, resolve_distribution)
-from .tasks import BLOCK, MAX_BLOCKS, unplaceable_message
+from .env import (DEFAULT_MAX_EPISODE_STEPS, as_actions, check_max_cones, check_options, check_seed,
+                  make_config, observation_bounds, problem_to_task, resolve_distribution)
+from .tasks import BLOCK, MAX_BLOCKS, _whole, unplaceable_message
 
 _INFO_KEYS = (("is_success", _k.R_SUCCESS, True), ("violation", _k.R_VIOLATION, True),
               ("min_cone_margin", _k.R_MIN_MARGIN, False), ("attitude_error", _k.R_ATT_ERR, False),
@@ -50,9 +55,9 @@ class SlewVectorEnv(VectorEnv):
     """A batch of ``num_envs`` ``SlewEnv`` copies (same arguments, see ``SlewEnv``).
 
     Extra arguments: ``num_envs``; ``max_episode_steps`` (default 400; ``None``
-    never truncates); ``parallel`` (default False): step the copies on numba
-    threads; ``pool_blocks``: uniform blocks pre-drawn per copy (memory
-    ``num_envs × pool_blocks × 256 × 8`` bytes).
+    never truncates); ``parallel`` (default False; True or False, nothing else):
+    step the copies on numba threads; ``pool_blocks`` (default 4): uniform blocks
+    pre-drawn per copy (memory ``num_envs × pool_blocks × 256 × 8`` bytes).
 
     ``parallel`` is off by default. On 2 idle cores it speeds up large batches
     (about 1.8x at 1024 copies), but when another process or the learner's own
@@ -70,23 +75,24 @@ class SlewVectorEnv(VectorEnv):
                  terminate_on_violation: bool = True, shaping: float = 1.0, att_tol_deg: float = 1.0,
                  rate_tol: float = 0.02, render_mode: Optional[str] = None,
                  parallel: bool = False, pool_blocks: int = 4):
-        if int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs: must be a whole number >= 1, got {num_envs!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+        n = _whole("num_envs", num_envs, 1)
+        if render_mode is not None and not (isinstance(render_mode, str)
+                                            and render_mode in self.metadata["render_modes"]):
             raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r}")
-        if int(pool_blocks) != pool_blocks or pool_blocks < 1:
-            raise ValueError(f"pool_blocks: must be a whole number >= 1, got {pool_blocks!r}")
-        n = self.num_envs = int(num_envs)
-        self.render_mode = render_mode
-        self.max_episode_steps = max_episode_steps
+                             f"got {render_mode!r:.80}")
+        pool_blocks = _whole("pool_blocks", pool_blocks, 1)
+        if not isinstance(parallel, (bool, np.bool_)):
+            raise ValueError(f"parallel: must be True or False, got {parallel!r:.80}")
         self.max_cones = check_max_cones(max_cones)
         self.task_distribution = resolve_distribution(task_distribution, self.max_cones)
-        self._dist = self.task_distribution.to_array()
-        self.control_dt = float(control_dt)
         self._cfg = make_config(control_dt, substeps, success_bonus, violation_penalty,
                                 terminate_on_violation, shaping, att_tol_deg, rate_tol,
                                 max_episode_steps)
+        self.num_envs = n
+        self.render_mode = render_mode
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self._dist = self.task_distribution.to_array()
+        self.control_dt = float(control_dt)
 
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         low, high = observation_bounds(self.max_cones)
@@ -100,8 +106,8 @@ class SlewVectorEnv(VectorEnv):
         self._outs = np.zeros((n, _k.OUT_LENGTH))
         self._actions = np.zeros((n, 3))
         self._pending = np.zeros(n, dtype=np.bool_)
-        self._pool = np.empty((n, int(pool_blocks), BLOCK))
-        self._pool_pos = np.full(n, int(pool_blocks), dtype=np.int64)
+        self._pool = np.empty((n, pool_blocks, BLOCK))
+        self._pool_pos = np.full(n, pool_blocks, dtype=np.int64)
         self._rngs: list = [None] * n
         self._has_reset = False
         self.parallel = bool(parallel)
@@ -112,14 +118,24 @@ class SlewVectorEnv(VectorEnv):
         n = self.num_envs
         # Validate everything before touching any copy, so a bad call changes nothing.
         which, given = self._parse_options(options)
-        if seed is None or isinstance(seed, (int, np.integer)):
-            seeds = [None] * n if seed is None else [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed)
+        if isinstance(seed, (list, tuple, np.ndarray)):
+            seeds = list(seed.tolist() if isinstance(seed, np.ndarray) else seed)
             if len(seeds) != n:
                 raise ValueError(f"seed: expected {n} seeds (one per copy), got {len(seeds)}")
-        if seed is None or isinstance(seed, (int, np.integer)):
-            super().reset(seed=None if seed is None else int(seed))
+            for s in seeds:
+                if s is not None and (isinstance(s, (bool, np.bool_)) or not isinstance(s, (int, np.integer))
+                                      or s < 0):
+                    raise ValueError(f"seed: a list of seeds must hold whole numbers >= 0 or None, "
+                                     f"got {s!r:.80} in {seed!r:.80}")
+            seeds = [None if s is None else int(s) for s in seeds]
+        else:
+            try:
+                seed = check_seed(seed)
+            except ValueError:
+                raise ValueError(f"seed: expected None, a whole number >= 0 or a list of {n} of them "
+                                 f"(one per copy), got {seed!r:.80}") from None
+            seeds = [None] * n if seed is None else [seed + i for i in range(n)]
+            super().reset(seed=seed)
         for i, s in enumerate(seeds):
             if s is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(s)
@@ -136,6 +152,9 @@ class SlewVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._has_reset:
             raise RuntimeError("call reset() before step()")
+        if not (type(actions) is np.ndarray and actions.shape == self._actions.shape
+                and actions.dtype.kind in "fiu"):
+            actions = as_actions("actions", actions, self._actions.shape)
         np.copyto(self._actions, actions)
         if self._step_kernel(self._tasks, self._sts, self._actions, self._cfg, self._dist,
                              self._pool, self._pool_pos, self._obs, self._outs, self._pending):
@@ -170,17 +189,16 @@ class SlewVectorEnv(VectorEnv):
         n = self.num_envs
         which = np.ones(n, dtype=np.int8)
         given = {}
-        options = dict(options or {})
-        unknown = set(options) - {"problems", "problem", "reset_mask"}
-        if unknown:
-            raise ValueError(f"options: unknown key(s) {sorted(unknown)}; "
-                             "use 'problems', 'problem' or 'reset_mask'")
+        options = check_options(options, ("problems", "problem", "reset_mask"))
         problems = options.get("problems")
         if options.get("problem") is not None:
             if problems is not None:
                 raise ValueError("options: give 'problem' or 'problems', not both")
             problems = [options["problem"]] * n
         if problems is not None:
+            if not isinstance(problems, (list, tuple)):
+                raise ValueError(f"problems: expected a list of {n} entries (a SlewProblem, a dict or None "
+                                 f"per copy), got {problems!r:.80}")
             if len(problems) != n:
                 raise ValueError(f"problems: expected {n} entries (one per copy), got {len(problems)}")
             for i, p in enumerate(problems):
@@ -188,7 +206,7 @@ class SlewVectorEnv(VectorEnv):
                     given[i] = problem_to_task(p, self.max_cones)[1]
                     which[i] = 2
         if options.get("reset_mask") is not None:
-            mask = np.asarray(options["reset_mask"], dtype=bool)
+            mask = self._mask(options["reset_mask"])
             if mask.shape != (n,):
                 raise ValueError(f"reset_mask: expected shape ({n},), got {mask.shape}")
             if not self._has_reset and not mask.all():
@@ -196,6 +214,25 @@ class SlewVectorEnv(VectorEnv):
             which[~mask] = 0
             given = {i: t for i, t in given.items() if mask[i]}
         return which, given
+
+    def _mask(self, value):
+        """``reset_mask`` as a bool array: booleans (or 0/1), not text or other numbers."""
+        bad = ValueError(f"reset_mask: expected {self.num_envs} booleans (one per copy), got {value!r:.80}")
+        if value is None or isinstance(value, (str, bytes, dict, set)):
+            raise bad
+        try:
+            arr = np.asarray(value)
+        except (TypeError, ValueError):
+            raise bad from None
+        if arr.dtype.kind == "O":
+            if not all(isinstance(v, (bool, np.bool_)) for v in arr.ravel()):
+                raise bad
+            arr = arr.astype(bool)
+        if arr.dtype.kind in "iu" and np.all((arr == 0) | (arr == 1)):
+            arr = arr.astype(bool)
+        if arr.dtype.kind != "b":
+            raise bad
+        return arr
 
     def _refill(self, i):
         self._rngs[i].random(out=self._pool[i])

@@ -209,7 +209,9 @@ def test_batch_equals_rows_and_nan_action_is_zero():
     for seed in range(6):
         o, _ = env.reset(seed=seed)
         for _ in range(10):
-            o, *_ = env.step(_pd(o))
+            o, _, terminated, *_ = env.step(_pd(o))
+            if terminated:   # a terminated episode takes no more steps (ResetNeeded)
+                break
         obs_rows.append(o)
         acts.append(_pd(o))
     O, A = np.array(obs_rows), np.array(acts)

@@ -124,6 +124,95 @@ def test_step_before_reset_raises():
         make().step(np.zeros(3))
 
 
+def _drifting_onto_target():
+    # at rest on the target but for a tiny rate: the first step succeeds
+    return {"inertia": [1, 1, 1], "qf": [1, 0, 0, 0], "omega0": [0, 0, 0.001]}
+
+
+@pytest.mark.parametrize("wrapped", [False, True])
+def test_step_after_success_raises_reset_needed(wrapped):
+    # a fuzz run: after terminated=True, step() integrated on and paid success_bonus on every call
+    env = gym.make(ENV_ID) if wrapped else make()
+    env.reset(options={"problem": _drifting_onto_target()})
+    _, reward, terminated, _, info = env.step(np.zeros(3))
+    assert terminated and info["is_success"] and reward > 9.0
+    for _ in range(2):
+        with pytest.raises(gym.error.ResetNeeded, match="terminated"):
+            env.step(np.zeros(3))
+    env.reset(options={"problem": _drifting_onto_target()})   # a reset starts a new episode
+    assert env.step(np.zeros(3))[2]
+    env.reset(seed=0)
+    _, reward, terminated, _, _ = env.step(np.zeros(3))
+    assert not terminated and reward < 0.0
+    assert not env.step(np.zeros(3))[2]   # steps go on while the episode is not over
+
+
+def test_step_after_violation_raises_reset_needed_only_when_terminating():
+    prob = spin_problem(cone_azimuth=0.3, half_angle=0.1)
+    env = make(shaping=0.0)
+    env.reset(options={"problem": prob})
+    for _ in range(200):
+        _, reward, terminated, _, info = env.step(np.zeros(3))
+        if terminated:
+            break
+    assert terminated and info["violation"] and reward < -9.0
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(3))
+    # without terminate_on_violation the episode goes on through the cone
+    env = make(shaping=0.0, terminate_on_violation=False)
+    env.reset(options={"problem": prob})
+    violations = 0
+    for _ in range(200):
+        _, _, terminated, _, info = env.step(np.zeros(3))
+        assert not terminated
+        violations += info["violation"]
+    assert violations > 0
+
+
+@pytest.mark.parametrize("action", [
+    # a fuzz run: text was parsed as numbers, complex lost its imaginary part with a warning,
+    # other non-numbers raised numpy's own errors naming no argument
+    np.array(["1", "0", "0"]), ["1", 0, 0], "abc", b"abc", {"a": 1}, None, {1, 2, 3},
+    [1j, 0, 0], np.array([1j, 0, 0]), np.array([True, False, True]), [True, 0.5, 0],
+    [None, 0, 0], np.array([None, 0, 0]), [[1, 0], [0]], np.zeros((1, 3)), np.zeros(4), 1.0,
+])
+def test_action_that_is_not_three_real_numbers_is_refused_by_name(action):
+    env = make()
+    env.reset(seed=0)
+    before = env.state
+    with pytest.raises(ValueError, match=r"^action: expected real numbers of shape \(3,\), got"):
+        env.step(action)
+    assert np.array_equal(env.state, before)
+
+
+@pytest.mark.parametrize("action", [
+    [1, 0, -1], (1.0, 0.0, -1.0), np.array([1, 0, -1], dtype=np.int64), np.array([1, 0, -1], dtype=np.float32),
+    np.array([1, 0, -1], dtype=object), [np.float32(1), np.int8(0), -1.0],
+])
+def test_actions_of_real_numbers_in_any_container_are_equal(action):
+    a, b = make(), make()
+    a.reset(seed=4)
+    b.reset(seed=4)
+    assert np.array_equal(a.step(action)[0], b.step(np.array([1.0, 0.0, -1.0]))[0])
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"seed": 1.5}, r"^seed: expected None or a whole number >= 0, got 1.5"),
+    ({"seed": "1"}, r"^seed: expected None or a whole number >= 0, got '1'"),
+    ({"seed": True}, r"^seed: expected None or a whole number >= 0, got True"),
+    ({"seed": -1}, r"^seed: expected None or a whole number >= 0, got -1"),
+    ({"options": [1]}, r"^options: expected None or a dict, got \[1\]"),
+    ({"options": "problem"}, r"^options: expected None or a dict, got 'problem'"),
+    ({"options": {"problems": []}}, r"^options: unknown key\(s\) \['problems'\]"),
+    ({"options": {"problem": 3}}, r"^problem: expected a SlewProblem or a dict"),
+])
+def test_reset_arguments_are_checked_by_name(kw, match):
+    env = make()
+    with pytest.raises(ValueError, match=match):
+        env.reset(**kw)
+    assert np.array_equal(env.reset(seed=np.int64(5))[0], make().reset(seed=5)[0])
+
+
 # ---------------------------------------------------------------- observation
 def test_full_target_error_quaternion_completes_the_slew():
     env = make()
@@ -380,12 +469,17 @@ def test_bad_arguments_raise():
     ("max_cones", None, r"^max_cones: must be a whole number >= 0, got None"),
     ("success_bonus", "1", r"^success_bonus: must be a finite number >= 0, got '1'"),
     ("terminate_on_violation", "no", r"^terminate_on_violation: must be True or False"),
+    ("control_dt", 10 ** 400, r"^control_dt: must be a positive finite number"),
+    ("substeps", 10 ** 400, r"^substeps: must be a whole number <= "),
+    ("render_mode", ["human"], r"^render_mode: expected one of"),
+    ("task_distribution", {"family": "full-attitude", "max_cone_tries": "5"}, r"^max_cone_tries: "),
 ])
 def test_arguments_of_the_wrong_type_are_refused_by_name(key, bad, match):
     with pytest.raises(ValueError, match=match):
         make(**{key: bad})
     assert make(**{key: {"control_dt": 0.2, "substeps": 2, "max_cones": 3, "success_bonus": 1,
-                        "terminate_on_violation": 0}[key]}) is not None
+                        "terminate_on_violation": 0, "render_mode": "rgb_array",
+                        "task_distribution": {"family": "full-attitude", "max_cone_tries": 5}}[key]}) is not None
 
 
 # ---------------------------------------------------------------- reproducibility

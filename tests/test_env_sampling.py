@@ -1,5 +1,6 @@
 """Task sampler and TaskDistribution."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -141,3 +142,95 @@ def test_resolve():
     assert d.n_cones == (2, 2) and d.pointing_prob == 1.0 and d.name == "pointing-cones"
     with pytest.raises(ValueError, match="task_distribution"):
         TaskDistribution.resolve("nope")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    # a fuzz run: float()/int() raised their own TypeError/OverflowError, or text and
+    # booleans were read as numbers, or max_cone_tries=1.5 was truncated to 1
+    ({"max_cone_tries": float("inf")}, r"^max_cone_tries: must be a whole number >= 1, got inf"),
+    ({"max_cone_tries": float("nan")}, r"^max_cone_tries: must be a whole number >= 1, got nan"),
+    ({"max_cone_tries": 1.5}, r"^max_cone_tries: must be a whole number >= 1, got 1.5"),
+    ({"max_cone_tries": None}, r"^max_cone_tries: must be a whole number >= 1, got None"),
+    ({"max_cone_tries": "20"}, r"^max_cone_tries: must be a whole number >= 1, got '20'"),
+    ({"max_cone_tries": True}, r"^max_cone_tries: must be a whole number >= 1, got True"),
+    ({"pointing_prob": None}, r"^pointing_prob: must be a number in \[0, 1\], got None"),
+    ({"pointing_prob": "0.5"}, r"^pointing_prob: must be a number in \[0, 1\], got '0.5'"),
+    ({"pointing_prob": True}, r"^pointing_prob: must be a number in \[0, 1\], got True"),
+    ({"symmetric_prob": float("nan")}, r"^symmetric_prob: must be a number in \[0, 1\], got nan"),
+    ({"path_cone_prob": [0.5]}, r"^path_cone_prob: must be a number in \[0, 1\]"),
+    ({"cone_clearance_deg": None}, r"^cone_clearance_deg: must be a number in \[0, 90\), got None"),
+    ({"cone_clearance_deg": "3"}, r"^cone_clearance_deg: must be a number in \[0, 90\), got '3'"),
+    ({"path_offset": "0.2"}, r"^path_offset: must be a number in \[0, 1\)"),
+    ({"path_offset": float("inf")}, r"^path_offset: must be a number in \[0, 1\)"),
+    ({"angle_deg": ["10", "20"]}, r"^angle_deg: expected a \(low, high\) pair of numbers"),
+    ({"angle_deg": "ab"}, r"^angle_deg: expected a \(low, high\) pair of numbers"),
+    ({"angle_deg": None}, r"^angle_deg: expected a \(low, high\) pair of numbers"),
+    ({"angle_deg": (10, float("nan"))}, r"^angle_deg: need finite low <= high"),
+    ({"inertia_ratio": (True, 1)}, r"^inertia_ratio: expected a \(low, high\) pair of numbers"),
+    ({"n_cones": (1, float("inf"))}, r"^n_cones: need finite low <= high"),
+    ({"cone_half_angle_deg": (10, "30")}, r"^cone_half_angle_deg: expected a \(low, high\) pair"),
+    ({"inertia": None}, r"^inertia: expected one or three positive numbers, got None"),
+    ({"inertia": ["1", 1, 1]}, r"^inertia: expected numbers, got text"),
+    ({"torque_max": "0.5"}, r"^torque_max: expected numbers, got text"),
+    ({"torque_max": [1, True, 1]}, r"^torque_max: expected numbers, got a boolean"),
+    ({"sensor_axis": ["1", 0, 0]}, r"^sensor_axis: expected numbers, got text"),
+    ({"sensor_axis": None}, r"^sensor_axis: expected 3 numbers"),
+    ({"inertia_mode": ["fixed"]}, r"^inertia_mode: expected one of"),
+    ({"name": 3}, r"^name: expected a string, got 3"),
+])
+def test_fields_of_the_wrong_type_are_refused_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        TaskDistribution(**kwargs)
+
+
+def test_numpy_numbers_are_accepted():
+    d = TaskDistribution(max_cone_tries=np.int64(7), pointing_prob=np.float32(0.25),
+                         angle_deg=np.array([20.0, 90.0]), inertia=np.array([1, 2, 3]), n_cones=(np.int64(0), 2),
+                         cone_half_angle_deg=(10, 20))
+    assert d.max_cone_tries == 7 and type(d.max_cone_tries) is int
+    assert d.angle_deg == (20.0, 90.0) and d.inertia == (1.0, 2.0, 3.0) and d.pointing_prob == 0.25
+
+
+@pytest.mark.parametrize("spec, match", [
+    ({"family": "full-attitude", "bogus": 1}, r"^task_distribution: unknown field\(s\) \['bogus'\]"),
+    ({"bogus": 1}, r"^task_distribution: unknown field\(s\) \['bogus'\]"),
+    ({1: 2}, r"^task_distribution: unknown field\(s\) \[1\]"),
+    ({"family": ["full-attitude"]}, r"^task_distribution: unknown family"),
+    (3, r"^task_distribution: expected a family name"),
+])
+def test_resolve_refuses_bad_specs_by_name(spec, match):
+    with pytest.raises(ValueError, match=match):
+        TaskDistribution.resolve(spec)
+
+
+@pytest.mark.parametrize("kwargs, field, worst", [
+    # every body drawn would be refused by SlewProblem (MAX_AXIS_SPREAD = 1000)
+    ({"torque_max": [1e-6, 1, 1]}, "inertia_ratio, torque_max", 2.5e6),
+    ({"inertia_mode": "symmetric", "torque_max": [1e-4, 1, 1]}, "torque_max", 1e4),
+    ({"inertia_mode": "fixed", "inertia": (1, 1, 1e6)}, "inertia, torque_max", 1e6),
+    # each factor alone within the bound, the product beyond it: strong axis at J = 0.1, weak
+    # one at J = 1 with a torque 200 times smaller
+    ({"inertia_ratio": (0.1, 1.0), "torque_max": [1, 1, 5e-3]}, "inertia_ratio, torque_max", 2e3),
+    ({"inertia_ratio": (1e-4, 1.0)}, "inertia_ratio, torque_max", 1e4),
+])
+def test_distributions_that_can_draw_a_refused_body_are_refused(kwargs, field, worst):
+    with pytest.raises(ValueError, match=rf"^{field}: the axes' acceleration bounds .* factor {re.escape(f'{worst:.3g}')} "):
+        TaskDistribution(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"inertia_ratio": (0.1, 1.0), "torque_max": [1, 1, 1e-2]},          # worst case exactly 1000
+    {"inertia_mode": "fixed", "inertia": (1, 1, 1e3)},
+    {"inertia_mode": "fixed", "inertia": (1, 1, 1e3), "torque_max": [1, 1, 1e3]},   # u / J all equal
+    {"inertia_mode": "asymmetric", "inertia": (1, 1, 1e6)},            # inertia unused in this mode
+])
+def test_distributions_at_the_spread_limit_draw_valid_problems(kwargs):
+    dist = TaskDistribution(**kwargs)
+    for seed in range(20):
+        dist.sample(seed)   # SlewProblem validates every draw
+
+
+def test_make_with_a_spread_beyond_the_limit_fails_at_construction():
+    import gymnasium as gym
+    with pytest.raises(ValueError, match=r"^inertia_ratio, torque_max: "):
+        gym.make("slew_env/Slew-v0", task_distribution={"family": "full-attitude", "torque_max": [1e-6, 1, 1]})

@@ -183,3 +183,130 @@ def test_sb3_subproc_vec_env_in_spawned_workers(tmp_path):
                          timeout=240, env={**__import__("os").environ, "PYTHONPATH": str(REPO)})
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.strip().endswith("ok")
+
+
+# ---------------------------------------------------------------- arguments checked by name
+@pytest.mark.parametrize("kw, match", [
+    # a fuzz run: bool() took text, None, NaN and 2 as booleans ("no" switched threads on)
+    ({"parallel": "no"}, r"^parallel: must be True or False, got 'no'"),
+    ({"parallel": "false"}, r"^parallel: must be True or False, got 'false'"),
+    ({"parallel": None}, r"^parallel: must be True or False, got None"),
+    ({"parallel": float("nan")}, r"^parallel: must be True or False, got nan"),
+    ({"parallel": 2}, r"^parallel: must be True or False, got 2"),
+    # int()/float() raised their own TypeError, or named no argument
+    ({"num_envs": None}, r"^num_envs: must be a whole number >= 1, got None"),
+    ({"num_envs": float("nan")}, r"^num_envs: must be a whole number >= 1, got nan"),
+    ({"num_envs": float("inf")}, r"^num_envs: must be a whole number >= 1, got inf"),
+    ({"num_envs": "2"}, r"^num_envs: must be a whole number >= 1, got '2'"),
+    ({"num_envs": 2.5}, r"^num_envs: must be a whole number >= 1, got 2.5"),
+    ({"num_envs": True}, r"^num_envs: must be a whole number >= 1, got True"),
+    ({"pool_blocks": None}, r"^pool_blocks: must be a whole number >= 1, got None"),
+    ({"pool_blocks": float("inf")}, r"^pool_blocks: must be a whole number >= 1, got inf"),
+    ({"pool_blocks": "4"}, r"^pool_blocks: must be a whole number >= 1, got '4'"),
+    ({"control_dt": None}, r"^control_dt: must be a positive finite number, got None"),
+    ({"control_dt": "0.05"}, r"^control_dt: must be a positive finite number, got '0.05'"),
+    ({"max_episode_steps": "10"}, r"^max_episode_steps: must be a whole number >= 1, got '10'"),
+    ({"max_episode_steps": 1.5}, r"^max_episode_steps: must be a whole number >= 1, got 1.5"),
+    ({"render_mode": ["rgb_array"]}, r"^render_mode: expected one of"),
+    ({"task_distribution": {"family": "pointing-cones", "path_offset": "0.2"}}, r"^path_offset: "),
+])
+def test_constructor_arguments_are_checked_by_name(kw, match):
+    with pytest.raises(ValueError, match=match):
+        SlewVectorEnv(**{"num_envs": 2, **kw})
+
+
+def test_good_constructor_arguments_are_kept():
+    vec = SlewVectorEnv(num_envs=np.int64(2), parallel=np.bool_(False), pool_blocks=2.0, max_episode_steps=7.0)
+    assert vec.num_envs == 2 and type(vec.num_envs) is int and vec.parallel is False
+    assert vec.max_episode_steps == 7 and type(vec.max_episode_steps) is int
+    assert SlewVectorEnv(num_envs=1, parallel=True).parallel is True
+
+
+@pytest.fixture(scope="module")
+def vec3():
+    vec = SlewVectorEnv(num_envs=3)
+    vec.reset(seed=0)
+    return vec
+
+
+@pytest.mark.parametrize("actions", [
+    # a fuzz run: (3, 1) and (3,) were broadcast to (3, 3) silently, other shapes gave numpy's
+    # broadcast message, text/None/complex numpy's own TypeError (complex a warning)
+    np.array([[1.0], [0.0], [-1.0]]), np.zeros(3), np.zeros((1, 3)), np.zeros((3, 4)), np.zeros((2, 3)),
+    np.zeros((3, 3, 1)), 0.5, "abc", None, {"a": 1}, np.zeros((3, 3)) + 1j, [[1j, 0, 0]] * 3,
+    np.full((3, 3), "1"), [["1", 0, 0]] * 3, np.ones((3, 3), dtype=bool), [[True, 0.5, 0]] * 3,
+    [[None, 0, 0]] * 3, [[1, 0, 0], [1, 0], [1]],
+])
+def test_actions_of_the_wrong_shape_or_type_are_refused_by_name(vec3, actions):
+    before = vec3.states
+    with pytest.raises(ValueError, match=r"^actions: expected real numbers of shape \(3, 3\), got"):
+        vec3.step(actions)
+    assert np.array_equal(vec3.states, before)
+
+
+def test_actions_of_real_numbers_in_any_container_are_equal():
+    ref = np.array([[1.0, 0.0, -1.0], [0.5, 0.5, 0.0], [0.0, 0.0, 1.0]])
+    results = []
+    for actions in (ref, ref.tolist(), ref.astype(np.float32), (ref * 2).astype(np.int64) / 2,
+                    np.array([[1, 0, -1], [0, 0, 0], [0, 0, 1]]), ref.astype(object)):
+        vec = SlewVectorEnv(num_envs=3)
+        vec.reset(seed=9)
+        results.append((vec.step(actions)[0], np.asarray(actions, dtype=float)))
+    for obs, act in results:
+        if np.array_equal(act, ref):
+            assert np.array_equal(obs, results[0][0])
+    assert not np.array_equal(results[4][0], results[0][0])   # the integer actions differ
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"seed": 1.5}, r"^seed: expected None, a whole number >= 0 or a list of 3 of them"),
+    ({"seed": "12"}, r"^seed: expected None, a whole number >= 0 or a list of 3 of them"),
+    ({"seed": True}, r"^seed: expected None, a whole number >= 0 or a list of 3 of them"),
+    ({"seed": -1}, r"^seed: expected None, a whole number >= 0 or a list of 3 of them"),
+    ({"seed": [1, 2, 1.5]}, r"^seed: a list of seeds must hold whole numbers >= 0 or None, got 1.5"),
+    ({"seed": [1, 2, "3"]}, r"^seed: a list of seeds must hold whole numbers >= 0 or None, got '3'"),
+    ({"seed": [1, 2]}, r"^seed: expected 3 seeds \(one per copy\), got 2"),
+    ({"options": [1]}, r"^options: expected None or a dict, got \[1\]"),
+    ({"options": "problems"}, r"^options: expected None or a dict, got 'problems'"),
+    ({"options": {"problme": None}}, r"^options: unknown key\(s\) \['problme'\]"),
+    ({"options": {"problems": 3}}, r"^problems: expected a list of 3 entries"),
+    ({"options": {"problems": "abc"}}, r"^problems: expected a list of 3 entries"),
+    ({"options": {"problems": [3, None, None]}}, r"^problem: expected a SlewProblem or a dict"),
+    ({"options": {"problem": "abc"}}, r"^problem: expected a SlewProblem or a dict"),
+    ({"options": {"reset_mask": "abc"}}, r"^reset_mask: expected 3 booleans"),
+    ({"options": {"reset_mask": ["false", "true", "true"]}}, r"^reset_mask: expected 3 booleans"),
+    ({"options": {"reset_mask": [0.5, 1, 1]}}, r"^reset_mask: expected 3 booleans"),
+    ({"options": {"reset_mask": [None, True, True]}}, r"^reset_mask: expected 3 booleans"),
+    ({"options": {"reset_mask": [True, True]}}, r"^reset_mask: expected shape \(3,\)"),
+])
+def test_reset_arguments_are_checked_by_name(vec3, kw, match):
+    tasks, states = vec3.tasks, vec3.states
+    with pytest.raises(ValueError, match=match):
+        vec3.reset(**kw)
+    assert np.array_equal(vec3.tasks, tasks) and np.array_equal(vec3.states, states)
+
+
+def test_reset_accepts_the_documented_seed_forms():
+    a, b = SlewVectorEnv(num_envs=3), SlewVectorEnv(num_envs=3)
+    assert np.array_equal(a.reset(seed=np.int64(4))[0], b.reset(seed=[4, 5, 6])[0])
+    assert np.array_equal(a.reset(seed=np.array([7, 8, 9]))[0], b.reset(seed=(7, np.int32(8), 9))[0])
+    a.reset(seed=[1, None, 3])
+    for mask in ([1, 0, 1], np.array([True, False, True]), [np.bool_(True), False, True]):
+        before = a.states
+        after = a.reset(options={"reset_mask": mask}) and a.states
+        assert np.array_equal(after[1], before[1])
+        assert not np.array_equal(after[0], before[0]) and not np.array_equal(after[2], before[2])
+
+
+def test_a_terminated_copy_is_autoreset_not_stepped_on():
+    # SlewEnv raises ResetNeeded after termination; the batch keeps Gymnasium's next-step
+    # autoreset: reward 0, not terminated, a new task (the bonus is never paid twice)
+    drift = {"inertia": [1, 1, 1], "qf": [1, 0, 0, 0], "omega0": [0, 0, 0.001]}
+    vec = SlewVectorEnv(num_envs=2)
+    vec.reset(seed=0, options={"problems": [drift, None]})
+    _, rew, term, _, infos = vec.step(np.zeros((2, 3)))
+    assert term.tolist() == [True, False] and infos["is_success"][0] and rew[0] > 9.0
+    obs, rew, term, trunc, infos = vec.step(np.zeros((2, 3)))
+    assert rew[0] == 0.0 and not term[0] and not trunc[0] and infos["time"][0] == 0.0
+    assert not np.array_equal(vec.tasks[0], SlewProblem.from_dict(drift).to_task_array(4))
+    assert vec.step(np.zeros((2, 3)))[1][0] < 0.0
