@@ -210,6 +210,8 @@ def optimal_trajectory(rec: dict, env_kwargs=None, dt_fine: float = 0.002) -> Op
         t.append(info["time"])
         att.append(info["attitude_error"])
         sensor.append(_sensor_inertial(env.state[:4], s_b))
+        if term:        # at the target's tolerance, or a cone grazed past 1e-9 rad: the flight ends
+            break
     env.close()
     return {"t": np.asarray(t), "att": np.asarray(att), "sensor": np.asarray(sensor), "u": np.asarray(u),
             "tf": float(rec["tf"]), "source": "switch times"}
