@@ -338,7 +338,7 @@ class AttitudeBVP:
         n_sw_kept = min(n_sw, swt.shape[0])
         ok = status == af.FLOW_OK
         msg = "" if ok else flow_failure(status)
-        if ok and n_rec >= n_max and rt[n_rec - 1] < T:
+        if ok and 0 < n_max <= n_rec and rt[n_rec - 1] < T:
             ok, msg = False, f"the dense record filled its {n_max} rows at t = {rt[n_rec - 1]:.6g} of {T:.6g}"
         return Trajectory(rt[:n_rec].copy(), rY[:n_rec].copy(), rs[:n_rec].copy(), swt[:n_sw_kept].copy(),
                           swa[:n_sw_kept].copy(), s0, ok, msg)
