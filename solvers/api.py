@@ -221,6 +221,9 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     """``solve`` with the BLAS libraries at one thread (``blas_threads``)."""
     prob = SlewProblem.from_dict(problem)   # a SlewProblem passes through
     use_table, check_local, cone_challenge, fallback, col_opts = _checked_options(method, guess, options)
+    for k, (c, _, _) in enumerate((guess.touches or []) if guess is not None else []):
+        if c >= len(prob.cones):
+            raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(prob.cones)} cone(s)")
     reserved = 0.0
     if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None:
         # the fallback is planned after the route: its time comes out of the route's budget, so

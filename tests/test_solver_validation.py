@@ -149,6 +149,15 @@ def test_guess_fields_that_are_not_numbers_are_refused_by_name():
         solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[float("nan")], [], []])
 
 
+def test_a_guess_touching_a_cone_the_problem_lacks_is_refused():
+    # a fuzz run: an out-of-range cone index was accepted (the solvers recovered, silently)
+    prob = SlewProblem.from_dict({"inertia": [1, 1, 1], "sensor_target": [0, 1, 0],
+                                  "cones": [{"axis": [1, 1, 0], "half_angle_deg": 10}]})
+    g = solvers.Guess(costate0=np.ones(7), tf=2.0, touches=[(5, 1.0, 0.1)])
+    with pytest.raises(ValueError, match=r"^guess.touches\[0\]: cone index 5, but the problem has 1 cone"):
+        solvers.solve(prob, guess=g)
+
+
 def test_guess_of_wrong_type():
     with pytest.raises(ValueError, match=r"^guess: expected a solvers.Guess"):
         solvers.solve(_prob(), guess={"tf": 3})
