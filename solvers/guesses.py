@@ -59,6 +59,9 @@ def _not_a_number(v) -> bool:
 
 def _numbers(name, value):
     """``value`` as a float array, or a ``ValueError`` naming ``name``."""
+    if type(value) is np.ndarray and value.dtype.kind == "f":
+        # the models' own guesses: no look at the entries (a guess is built in microseconds)
+        return value if value.dtype == np.float64 else value.astype(np.float64)
     if value is None or _not_a_number(value):
         raise ValueError(f"{name}: expected numbers, got {value!r:.80}")
     try:
@@ -84,13 +87,19 @@ class Guess:
         c = _numbers("guess.costate0", self.costate0)
         if c.shape != (7,):
             raise ValueError(f"guess.costate0: expected 7 numbers [λq (4), λω (3)], got shape {c.shape}")
-        if not np.all(np.isfinite(c)):
+        if not np.isfinite(c).all():
             raise ValueError("guess.costate0: all entries must be finite")
         self.costate0 = c
-        tf = _numbers("guess.tf", self.tf)
-        if tf.shape != () or not (math.isfinite(float(tf)) and float(tf) > 0.0):
+        if type(self.tf) is float or type(self.tf) is np.float64:
+            tf = float(self.tf)
+        else:
+            tf = _numbers("guess.tf", self.tf)
+            if tf.shape != ():
+                raise ValueError(f"guess.tf: must be a positive finite time, got {self.tf!r:.80}")
+            tf = float(tf)
+        if not (math.isfinite(tf) and tf > 0.0):
             raise ValueError(f"guess.tf: must be a positive finite time, got {self.tf!r:.80}")
-        self.tf = float(tf)
+        self.tf = tf
         if self.switch_times is not None:
             if isinstance(self.switch_times, (str, bytes)) or not hasattr(self.switch_times, "__len__") \
                     or len(self.switch_times) != 3:
@@ -98,14 +107,14 @@ class Guess:
             self.switch_times = [_numbers(f"guess.switch_times[{i}]", s).ravel()
                                  for i, s in enumerate(self.switch_times)]
             for i, s in enumerate(self.switch_times):
-                if not np.all(np.isfinite(s)):
+                if s.size and not np.isfinite(s).all():
                     raise ValueError(f"guess.switch_times[{i}]: all entries must be finite, got {s.tolist()!r:.80}")
         if isinstance(self.candidates, (str, bytes)) or not isinstance(self.candidates, (list, tuple)):
             raise ValueError(f"guess.candidates: expected a list of Guess objects or functions returning one, "
                              f"got {type(self.candidates).__name__}")
         if self.u_first is not None:
             u = _numbers("guess.u_first", self.u_first)
-            if u.shape != (3,) or not np.all(np.isfinite(u)):
+            if u.shape != (3,) or not np.isfinite(u).all():
                 raise ValueError(f"guess.u_first: expected 3 finite signs (one per axis), got shape {u.shape}")
             self.u_first = np.sign(u)
         if self.touches is not None:
