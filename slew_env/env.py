@@ -12,7 +12,8 @@ from .core import env_kernels as _k
 from .core import task as _t
 from .core.quaternion import qrotate
 from .problem import SlewProblem
-from .tasks import TaskDistribution, _finite, _real, _whole, draw_task  # noqa: F401 (_real re-exported)
+from .checks import is_finite, is_integer, is_real, whole
+from .tasks import TaskDistribution, draw_task
 
 from . import DEFAULT_MAX_EPISODE_STEPS, ENV_ID  # noqa: F401 (re-exported)
 # A cone counts as violated when the sensor is inside it by more than this (rad):
@@ -70,9 +71,9 @@ def as_actions(name, value, shape) -> np.ndarray:
         if isinstance(value, (list, tuple)) and arr.dtype.kind in "fiu":
             # numpy reads [True, 0.5, 0] as floats: look at the entries of a (small) list
             flat = np.asarray(value, dtype=object).ravel()
-            if not all(_real(v) or isinstance(v, np.ndarray) and v.dtype.kind in "fiu" for v in flat):
+            if not all(is_real(v) or isinstance(v, np.ndarray) and v.dtype.kind in "fiu" for v in flat):
                 raise ValueError(f"{name}: expected {expected}, got {value!r:.80}")
-    if arr.dtype.kind == "O" and all(_real(v) for v in arr.ravel()):
+    if arr.dtype.kind == "O" and all(is_real(v) for v in arr.ravel()):
         arr = arr.astype(np.float64)
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"{name}: expected {expected}, got an array of dtype {arr.dtype} {value!r:.80}")
@@ -81,11 +82,17 @@ def as_actions(name, value, shape) -> np.ndarray:
     return arr
 
 
+def check_render_mode(render_mode, modes) -> None:
+    """``render_mode``: ``None`` or one of ``modes``; a ``ValueError`` naming it otherwise."""
+    if render_mode is not None and not (isinstance(render_mode, str) and render_mode in modes):
+        raise ValueError(f"render_mode: expected one of {modes} or None, got {render_mode!r:.80}")
+
+
 def check_seed(seed):
     """``seed`` (``None`` or a whole number >= 0) as an int or ``None``; ``ValueError`` naming ``seed``."""
     if seed is None:
         return None
-    if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)) and seed >= 0):
+    if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed: expected None or a whole number >= 0, got {seed!r:.80}")
     return int(seed)
 
@@ -107,21 +114,21 @@ def make_config(control_dt, substeps, success_bonus, violation_penalty, terminat
                 shaping, att_tol_deg, rate_tol, max_episode_steps=None) -> np.ndarray:
     """Validate the environment arguments and pack them for the kernels."""
     def positive(name, v):
-        if not (_finite(v) and v > 0.0):
+        if not (is_finite(v) and v > 0.0):
             raise ValueError(f"{name}: must be a positive finite number, got {v!r:.80}")
         return float(v)
 
     def nonneg(name, v):
-        if not (_finite(v) and v >= 0.0):
+        if not (is_finite(v) and v >= 0.0):
             raise ValueError(f"{name}: must be a finite number >= 0, got {v!r:.80}")
         return float(v)
 
     if not (isinstance(terminate_on_violation, (bool, np.bool_))
-            or (_real(terminate_on_violation) and terminate_on_violation in (0, 1))):
+            or (is_real(terminate_on_violation) and terminate_on_violation in (0, 1))):
         raise ValueError(f"terminate_on_violation: must be True or False, got {terminate_on_violation!r:.80}")
     cfg = np.zeros(_k.CFG_LENGTH)
     cfg[_k.C_DT] = positive("control_dt", control_dt)
-    cfg[_k.C_SUBSTEPS] = _whole("substeps", substeps, 1)
+    cfg[_k.C_SUBSTEPS] = whole("substeps", substeps, 1)
     cfg[_k.C_BONUS] = nonneg("success_bonus", success_bonus)
     cfg[_k.C_PENALTY] = nonneg("violation_penalty", violation_penalty)
     cfg[_k.C_TERMINATE] = 1.0 if terminate_on_violation else 0.0
@@ -129,7 +136,7 @@ def make_config(control_dt, substeps, success_bonus, violation_penalty, terminat
     cfg[_k.C_ATT_TOL] = math.radians(positive("att_tol_deg", att_tol_deg))
     cfg[_k.C_RATE_TOL] = positive("rate_tol", rate_tol)
     if max_episode_steps is not None:
-        cfg[_k.C_MAX_STEPS] = _whole("max_episode_steps", max_episode_steps, 1)
+        cfg[_k.C_MAX_STEPS] = whole("max_episode_steps", max_episode_steps, 1)
     cfg[_k.C_VIOL_TOL] = VIOLATION_TOL
     return cfg
 
@@ -143,7 +150,7 @@ def resolve_distribution(task_distribution, max_cones):
 
 
 def check_max_cones(max_cones):
-    return _whole("max_cones", max_cones, 0)
+    return whole("max_cones", max_cones, 0)
 
 
 def problem_to_task(problem, max_cones: int) -> tuple[SlewProblem, np.ndarray]:
@@ -299,10 +306,7 @@ class SlewEnv(gym.Env):
                  violation_penalty: float = 10.0, terminate_on_violation: bool = True,
                  shaping: float = 1.0, att_tol_deg: float = 1.0, rate_tol: float = 0.02,
                  render_mode: Optional[str] = None):
-        if render_mode is not None and not (isinstance(render_mode, str)
-                                            and render_mode in self.metadata["render_modes"]):
-            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r:.80}")
+        check_render_mode(render_mode, self.metadata["render_modes"])
         self.render_mode = render_mode
         self.max_cones = check_max_cones(max_cones)
         self.task_distribution = resolve_distribution(task_distribution, self.max_cones)

@@ -21,6 +21,7 @@ from typing import Optional
 
 import numpy as np
 
+from .checks import has_bool, has_text
 from .core import quaternion as _q
 from .core import task as _t
 from .core.cones import angle_between
@@ -53,9 +54,9 @@ FIELDS = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_
 
 def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=False):
     """Validate a finite float vector of ``length`` entries (scalar broadcast if allowed)."""
-    if _has_bool(value):
+    if has_bool(value):
         raise ValueError(f"{name}: expected numbers, got a boolean in {value!r}")
-    if _has_text(value):
+    if has_text(value):
         raise ValueError(f"{name}: expected numbers, got text in {value!r:.120} (write numbers "
                          "without quotes)")
     try:
@@ -85,36 +86,12 @@ def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=Fal
     return arr.copy()
 
 
-def _has_bool(value) -> bool:
-    """Whether ``value`` is or holds a boolean (JSON ``true``), which numpy would take as 1."""
-    if isinstance(value, (bool, np.bool_)):
-        return True
-    if isinstance(value, np.ndarray):
-        return value.dtype == bool
-    if isinstance(value, (list, tuple)):
-        return any(_has_bool(v) for v in value)
-    return False
-
-
-def _has_text(value) -> bool:
-    """Whether ``value`` is or holds a string, which numpy would parse as a number: a quoted
-    "1" in a JSON file is more likely a slip than intent, so it is refused, not guessed at."""
-    if isinstance(value, (str, bytes, np.str_, np.bytes_)):
-        return True
-    if isinstance(value, np.ndarray):
-        return value.dtype.kind in "SUO" and (value.dtype.kind != "O"
-                                             or any(_has_text(v) for v in value.ravel()))
-    if isinstance(value, (list, tuple)):
-        return any(_has_text(v) for v in value)
-    return False
-
-
 def _number(name, value, what="a number"):
     """``value`` as a float: ``ValueError`` naming ``name`` for booleans, text, non-numbers
     and integers too large for a float."""
     if isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name}: expected {what}, got {value!r}")
-    if _has_text(value):
+    if has_text(value):
         raise ValueError(f"{name}: expected {what}, got text {value!r:.120} (write numbers "
                          "without quotes)")
     try:

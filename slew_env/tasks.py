@@ -23,6 +23,7 @@ import numpy as np
 
 from .core import sampling as _s
 from .core import task as _t
+from .checks import is_finite, is_real, whole
 from .problem import MAX_AXIS_SPREAD, SlewProblem, _vector
 
 # Uniforms per sampling attempt. A failed attempt (cone rejections exhausted the
@@ -35,35 +36,12 @@ _INERTIA_MODES = {"fixed": _s.INERTIA_FIXED, "symmetric": _s.INERTIA_SYMMETRIC,
                   "asymmetric": _s.INERTIA_ASYMMETRIC}
 
 
-def _real(v) -> bool:
-    """A real number, not a boolean or text (``float()`` would take ``True`` as 1, ``"1"`` as 1)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-
-
-def _finite(v) -> bool:
-    """A finite real number (a Python int too large for a float is not)."""
-    try:
-        return _real(v) and math.isfinite(v)
-    except OverflowError:
-        return False
-
-
-def _whole(name, v, lo, hi=2 ** 53):
-    """``v`` as an int in ``[lo, hi]``, or a ``ValueError`` naming ``name``."""
-    if not (_real(v) and (isinstance(v, (int, np.integer)) or (math.isfinite(v) and int(v) == v))
-            and v >= lo):
-        raise ValueError(f"{name}: must be a whole number >= {lo}, got {v!r:.80}")
-    if v > hi:
-        raise ValueError(f"{name}: must be a whole number <= {hi}, got {v!r:.80}")
-    return int(v)
-
-
 def _pair(name, value, lo_bound=None, hi_bound=None, integer=False):
-    if not (isinstance(value, (list, tuple, np.ndarray)) and len(value) == 2
-            and all(_real(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value))):
+    pair = value.tolist() if isinstance(value, np.ndarray) else value
+    if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(is_real(v) for v in pair)):
         raise ValueError(f"{name}: expected a (low, high) pair of numbers, got {value!r:.80}")
-    lo, hi = value.tolist() if isinstance(value, np.ndarray) else value
-    if not (_finite(lo) and _finite(hi)) or lo > hi:
+    lo, hi = pair
+    if not (is_finite(lo) and is_finite(hi)) or lo > hi:
         raise ValueError(f"{name}: need finite low <= high, got ({lo!r:.40}, {hi!r:.40})")
     lo, hi = float(lo), float(hi)
     if lo_bound is not None and lo < lo_bound or hi_bound is not None and hi > hi_bound:
@@ -85,7 +63,7 @@ def _positive3(name, value):
 def _number_in(name, value, lo, hi, hi_open=False, what=None):
     """``value`` as a float in ``[lo, hi]`` (``[lo, hi)`` if ``hi_open``), or a ``ValueError`` naming ``name``."""
     interval = f"[{lo:g}, {hi:g}{')' if hi_open else ']'}"
-    if not (_finite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
+    if not (is_finite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
         raise ValueError(f"{name}: must be a number in {interval}{what or ''}, got {value!r:.80}")
     return float(value)
 
@@ -199,7 +177,7 @@ class TaskDistribution:
         set_("path_cone_prob", _probability("path_cone_prob", self.path_cone_prob))
         set_("path_offset", _number_in("path_offset", self.path_offset, 0.0, 1.0, hi_open=True,
                                        what=" so the arc crosses the cone"))
-        set_("max_cone_tries", _whole("max_cone_tries", self.max_cone_tries, 1))
+        set_("max_cone_tries", whole("max_cone_tries", self.max_cone_tries, 1))
         if not isinstance(self.name, str):
             raise ValueError(f"name: expected a string, got {self.name!r:.80}")
         self._check_axis_spread()

@@ -37,9 +37,10 @@ from numba import njit
 
 from .core import env_kernels as _k
 from .core import task as _t
-from .env import (DEFAULT_MAX_EPISODE_STEPS, as_actions, check_max_cones, check_options, check_seed,
-                  make_config, observation_bounds, problem_to_task, resolve_distribution)
-from .tasks import BLOCK, MAX_BLOCKS, _whole, unplaceable_message
+from .env import (DEFAULT_MAX_EPISODE_STEPS, as_actions, check_max_cones, check_options, check_render_mode,
+                  check_seed, make_config, observation_bounds, problem_to_task, resolve_distribution)
+from .checks import whole
+from .tasks import BLOCK, MAX_BLOCKS, unplaceable_message
 
 _INFO_KEYS = (("is_success", _k.R_SUCCESS, True), ("violation", _k.R_VIOLATION, True),
               ("min_cone_margin", _k.R_MIN_MARGIN, False), ("attitude_error", _k.R_ATT_ERR, False),
@@ -75,12 +76,9 @@ class SlewVectorEnv(VectorEnv):
                  terminate_on_violation: bool = True, shaping: float = 1.0, att_tol_deg: float = 1.0,
                  rate_tol: float = 0.02, render_mode: Optional[str] = None,
                  parallel: bool = False, pool_blocks: int = 4):
-        n = _whole("num_envs", num_envs, 1)
-        if render_mode is not None and not (isinstance(render_mode, str)
-                                            and render_mode in self.metadata["render_modes"]):
-            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r:.80}")
-        pool_blocks = _whole("pool_blocks", pool_blocks, 1)
+        n = whole("num_envs", num_envs, 1)
+        check_render_mode(render_mode, self.metadata["render_modes"])
+        pool_blocks = whole("pool_blocks", pool_blocks, 1)
         if not isinstance(parallel, (bool, np.bool_)):
             raise ValueError(f"parallel: must be True or False, got {parallel!r:.80}")
         self.max_cones = check_max_cones(max_cones)
@@ -122,12 +120,14 @@ class SlewVectorEnv(VectorEnv):
             seeds = list(seed.tolist() if isinstance(seed, np.ndarray) else seed)
             if len(seeds) != n:
                 raise ValueError(f"seed: expected {n} seeds (one per copy), got {len(seeds)}")
+            checked = []
             for s in seeds:
-                if s is not None and (isinstance(s, (bool, np.bool_)) or not isinstance(s, (int, np.integer))
-                                      or s < 0):
+                try:
+                    checked.append(check_seed(s))
+                except ValueError:
                     raise ValueError(f"seed: a list of seeds must hold whole numbers >= 0 or None, "
-                                     f"got {s!r:.80} in {seed!r:.80}")
-            seeds = [None if s is None else int(s) for s in seeds]
+                                     f"got {s!r:.80} in {seed!r:.80}") from None
+            seeds = checked
         else:
             try:
                 seed = check_seed(seed)

@@ -51,6 +51,7 @@ import time
 import numpy as np
 
 from slew_env import SlewProblem
+from slew_env.checks import is_integer, is_real
 from .deadline import propagation_deadline
 from .blas_threads import single_threaded_blas
 from .kernel_loading import ensure_kernels
@@ -264,19 +265,14 @@ MAX_DENSE_STEPS = 100_000
 def _int_option(options, key, lo, hi):
     if key in options:
         v = options[key]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+        if not is_integer(v) or not lo <= v <= hi:
             raise ValueError(f"{key}: expected an integer from {lo} to {hi:,}, got {v!r:.80}")
-
-
-def _is_real(v) -> bool:
-    """A real number, not a boolean (which Python would take as 0 or 1)."""
-    return not isinstance(v, bool) and isinstance(v, (int, float, np.floating, np.integer))
 
 
 def _positive_option(options, key):
     if key in options:
         v = options[key]
-        if not (_is_real(v) and math.isfinite(v) and v > 0):
+        if not (is_real(v) and math.isfinite(v) and v > 0):
             raise ValueError(f"{key}: expected a positive finite number, got {v!r:.80}")
 
 
@@ -310,7 +306,7 @@ def _check_tols(tols) -> None:
     if unknown:
         raise ValueError(f"tols: unknown check(s) {sorted(map(str, unknown))}; known: {sorted(known)}")
     for k, v in tols.items():
-        if not _is_real(v) or not (math.isfinite(v) or v == math.inf) or (
+        if not is_real(v) or not (math.isfinite(v) or v == math.inf) or (
                 math.isfinite(v) and v < 0.0 and k != "normality"):
             raise ValueError(f"tols[{k!r}]: expected a finite number ≥ 0, got {v!r:.80}")
 

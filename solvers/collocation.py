@@ -165,6 +165,7 @@ from typing import Optional
 import numpy as np
 
 from slew_env import SlewProblem
+from slew_env.checks import is_integer, is_real
 from slew_env.core.dynamics import state_rhs
 from slew_env.core.quaternion import qerror_angle, qrotate
 from slew_env.core.cones import angle_between
@@ -557,24 +558,18 @@ def check_scalar_options(**opts) -> None:
     """``solve_collocation``'s scalar options given in ``opts``, each a ``ValueError`` naming it
     (``solve`` checks its ``collocation`` dict with this whatever the route, before any NLP
     is built: a negative ``tol`` reached IPOPT, a text ``seed`` numpy)."""
-    def integer(v):
-        return not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer))
-
-    def real(v):
-        return not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
-
     for k, v in opts.items():
         if k == "transcription" and v not in TRANSCRIPTIONS:
             raise ValueError(f"transcription: unknown transcription {v!r}; choose one of {', '.join(TRANSCRIPTIONS)}")
-        if k == "tol" and not (real(v) and math.isfinite(v) and v > 0):
+        if k == "tol" and not (is_real(v) and math.isfinite(v) and v > 0):
             raise ValueError(f"tol: must be a positive number, got {v!r:.80}")
-        if k == "max_iter" and not (integer(v) and v >= 1):
+        if k == "max_iter" and not (is_integer(v) and v >= 1):
             raise ValueError(f"max_iter: must be a positive integer, got {v!r:.80}")
-        if k == "time_budget" and not (real(v) and v > 0 and not math.isnan(v)):
+        if k == "time_budget" and not (is_real(v) and v > 0 and not math.isnan(v)):
             raise ValueError(f"time_budget: must be a positive number of seconds, got {v!r:.80}")
-        if k == "n_starts" and v is not None and not (integer(v) and v >= 1):
+        if k == "n_starts" and v is not None and not (is_integer(v) and v >= 1):
             raise ValueError(f"n_starts: must be a positive integer, got {v!r:.80}")
-        if k == "seed" and not (integer(v) and 0 <= v < 2 ** 63):
+        if k == "seed" and not (is_integer(v) and 0 <= v < 2 ** 63):
             raise ValueError(f"seed: must be an integer ≥ 0, got {v!r:.80}")
         if k in ("verbose", "coarse", "defer_tf_tol") and not isinstance(v, (bool, np.bool_)):
             # bool("no") is True: text or numbers here are refused, not guessed at

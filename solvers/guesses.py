@@ -30,6 +30,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from slew_env.checks import has_bool, has_text
 from slew_env.core.quaternion import qaxis_angle, qconj, qmul
 
 
@@ -47,22 +48,12 @@ class _FailedCandidate:
         raise type(self.kind, (RuntimeError,), {})(self.message)
 
 
-def _not_a_number(v) -> bool:
-    """Whether ``v`` is or holds a boolean or text, which numpy would silently take as numbers
-    (``True`` as 1, ``"1"`` as 1)."""
-    if isinstance(v, (bool, np.bool_, str, bytes)):
-        return True
-    if isinstance(v, (list, tuple)):
-        return any(_not_a_number(x) for x in v)
-    return isinstance(v, np.ndarray) and v.dtype.kind in "bSU"
-
-
 def _numbers(name, value):
     """``value`` as a float array, or a ``ValueError`` naming ``name``."""
     if type(value) is np.ndarray and value.dtype.kind == "f":
         # the models' own guesses: no look at the entries (a guess is built in microseconds)
         return value if value.dtype == np.float64 else value.astype(np.float64)
-    if value is None or _not_a_number(value):
+    if value is None or has_bool(value) or has_text(value):
         raise ValueError(f"{name}: expected numbers, got {value!r:.80}")
     try:
         return np.asarray(value, dtype=float)

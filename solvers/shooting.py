@@ -180,19 +180,21 @@ def initial_nodes(problem, p, T, M):
 
 
 # seconds per column³ of ``np.linalg.lstsq`` (one BLAS thread: 3e-10 measured at 700-1,400
-# columns, more below), learnt from the solves this process has timed
+# columns, more below), learnt from the solves this process has timed; below
+# ``_LSTSQ_TIMED_FROM`` columns a solve takes a few ms at most and is neither predicted nor timed
 _LSTSQ_RATE = [6e-10]
+_LSTSQ_TIMED_FROM = 200
 
 
 def _lstsq_seconds(shape) -> float:
     """Predicted time of a least-squares solve of a ``shape`` matrix (0 for small ones)."""
     n = min(shape)
-    return 0.0 if n < 200 else _LSTSQ_RATE[0] * float(n) ** 3
+    return 0.0 if n < _LSTSQ_TIMED_FROM else _LSTSQ_RATE[0] * float(n) ** 3
 
 
 def _learn_lstsq(shape, seconds) -> None:
     n = min(shape)
-    if n >= 200:
+    if n >= _LSTSQ_TIMED_FROM:
         # held within a factor 2 a time, so that one slow call beside another job cannot
         # make every later many-segment solve give up
         _LSTSQ_RATE[0] = min(2.0 * _LSTSQ_RATE[0], max(0.5 * _LSTSQ_RATE[0], seconds / float(n) ** 3))

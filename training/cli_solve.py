@@ -38,8 +38,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
+import threading
 import time
 
 METHOD_CHOICES = ("auto", "indirect", "multiple-shooting", "collocation", "eigenaxis")  # == solvers.METHODS (tested; not imported: fast --help)
@@ -397,15 +399,12 @@ class _StopRequest:
         self._old = {}
 
     def __enter__(self):
-        import signal
-        import threading
         if threading.current_thread() is threading.main_thread():
             for s in (signal.SIGINT, signal.SIGTERM):
                 self._old[s] = signal.signal(s, self._handle)
         return self
 
     def _handle(self, signum, frame):
-        import signal
         if self.signal is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.signal = signum
@@ -417,7 +416,6 @@ class _StopRequest:
             raise KeyboardInterrupt
 
     def __exit__(self, *exc):
-        import signal
         for s, h in self._old.items():
             signal.signal(s, h)
         return False
@@ -425,7 +423,6 @@ class _StopRequest:
 
 def _ignore_sigint():
     """Pool workers leave Ctrl-C to the parent, which stops the batch between problems."""
-    import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -471,7 +468,6 @@ def _run_batch(args, opts):
         bar.close()
         what = "stdout output incomplete" if args.output == "-" else f"{args.output} not written"
         print(f"slew solve: interrupted; {what}", file=sys.stderr)
-        import signal
         return 143 if stop.signal == signal.SIGTERM else 130
     finally:
         bar.close()
