@@ -475,6 +475,39 @@ def test_compiled_single_row_inference_matches_the_numpy_batch_path():
         np.testing.assert_allclose(rows, batch, atol=2e-6 * np.max(np.abs(batch)))
 
 
+def test_one_call_guess_matches_the_staged_reference():
+    """The network's guess comes from one compiled call (canonical form, network, decoding, map
+    back); on problems of every axis order, sign, asymmetric body and bound it equals the staged
+    reference (``canonical_form``, ``predict_canonical``, ``solution_from_canonical``), and the
+    coverage reasons are the same."""
+    m = default_model()
+    rng = np.random.default_rng(7)
+    n_cov = 0
+    for i in range(120):
+        q0 = rng.normal(size=4)
+        qf = rng.normal(size=4)
+        J = rng.uniform(0.3, 1.0, 3) if i % 2 else np.ones(3)    # below 0.4: not covered
+        u = rng.uniform(0.5, 1.0, 3) if i % 5 == 0 else np.full(3, rng.uniform(0.5, 2.0))
+        p = SlewProblem(inertia=J, torque_max=u, q0=q0 / np.linalg.norm(q0), qf=qf / np.linalg.norm(qf))
+        g, why = m.guess_or_reason(p, propagate=False)
+        why_ref, cf = m._coverage(p)
+        assert why == why_ref
+        if why:
+            continue
+        n_cov += 1
+        pr = m.predict_canonical(cf.x, cf.T_eig)
+        c0, tf, sw, uf = solution_from_canonical(p, cf, pr.z, pr.T, pr.times, pr.u_first)
+        np.testing.assert_allclose(g.costate0, c0, rtol=1e-13, atol=1e-15 * np.abs(c0).max())
+        assert g.tf == pytest.approx(tf, rel=1e-14)
+        np.testing.assert_array_equal(g.u_first, uf)
+        for a, b in zip(g.switch_times, sw):
+            np.testing.assert_allclose(a, b, rtol=1e-14)
+        assert g.source == "learned" and g.touches is None
+        assert [c.source for c in g.candidates] == ["learned-costate"]
+        assert g.candidates[0].switch_times is None and g.candidates[0].candidates == []
+    assert n_cov > 40
+
+
 def test_compiled_forward_for_each_activation_and_depth_and_a_wrong_row_length():
     from solvers.warmstart.model import output_size
     rng = np.random.default_rng(2)

@@ -219,28 +219,40 @@ class WarmStartModel:
     def _coverage(self, problem):
         """``(reason or None, canonical form or None)``: the form is computed once, for the
         range checks and then for the prediction."""
-        why = unsupported_reason(problem)
+        why = self._family_reason(problem)
         if why:
             return why, None
+        cf = canonical_form(problem)
+        return self._range_reason(cf.x), cf
+
+    def _family_reason(self, problem):
+        """Why ``problem`` is not of the model's family (``None`` if it is), before its features."""
+        why = unsupported_reason(problem)
+        if why:
+            return why
         d = self.domain
         if problem.rate_max is not None and not d.get("rate_max", False):
-            return "rate_max: the model was trained without rate limits", None
+            return "rate_max: the model was trained without rate limits"
         norm = d.get("torque_norm", "inf")
         p = problem.torque_norm
         if str(norm) != ("inf" if math.isinf(p) else repr(float(p))):
-            return f"torque_norm: the model covers torque_norm={norm}, got {p}", None
-        cf = canonical_form(problem)
-        th_deg = math.degrees(cf.x[3] * math.pi)
+            return f"torque_norm: the model covers torque_norm={norm}, got {p}"
+        return None
+
+    def _range_reason(self, x):
+        """Why the features ``x`` are outside the model's ranges (``None`` if inside)."""
+        d = self.domain
+        th_deg = math.degrees(x[3] * math.pi)
         lo, hi = d.get("angle_deg", (0.0, 180.0))
         if not (lo - 1e-9 <= th_deg <= hi + 1e-9):
-            return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]", cf
+            return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]"
         rlo, rhi = d.get("inertia_ratio", (0.0, 1.0))
-        if float(cf.x[4:7].min()) < rlo - 1e-9:
-            return f"inertia: J_min/J_max = {cf.x[4:7].min():.3g} below the model's range ({rlo:g})", cf
+        if float(x[4:7].min()) < rlo - 1e-9:
+            return f"inertia: J_min/J_max = {x[4:7].min():.3g} below the model's range ({rlo:g})"
         ulo = d.get("torque_ratio_min", 1.0)
-        if float(cf.x[7:10].min()) < ulo - 1e-9:
-            return f"torque_max: u_min/u_max = {cf.x[7:10].min():.3g} below the model's range ({ulo:g})", cf
-        return None, cf
+        if float(x[7:10].min()) < ulo - 1e-9:
+            return f"torque_max: u_min/u_max = {x[7:10].min():.3g} below the model's range ({ulo:g})"
+        return None
 
     # ------------------------------------------------------------------ inference
     def forward(self, X):
@@ -282,14 +294,27 @@ class WarmStartModel:
         (one coverage check: ``solvers.solve`` calls this)."""
         problem = SlewProblem.from_dict(problem)
         t0 = time.perf_counter()
-        why, cf = self._coverage(problem)
+        why = self._family_reason(problem)
         if why:
             return None, why
-        pr = self.predict_canonical(cf.x, cf.T_eig)
-        c0, tf, sw, uf = solution_from_canonical(problem, cf, pr.z, pr.T, pr.times, pr.u_first)
-        # coverage checks and canonical form + network + mapping back
+        # one compiled call: canonical form, network, decoding, map back to the problem
+        # (``solvers.core.warmstart_kernels.attitude_guess``; the staged reference is
+        # ``predict_canonical`` and ``features.solution_from_canonical``)
+        L = self.layout
+        Ws, bs = self._rows
+        x, c0, tf, sw, counts, uf, ok = _k.attitude_guess(
+            problem.q0, problem.qf, problem.inertia, problem.torque_max, float(problem.torque_norm),
+            self.x_mean, self.x_std, Ws, bs, ACTIVATIONS.index(self.activation), self.K,
+            L["z"][0], L["log_T_ratio"][0], L["u_first_logit"][0], L["count_logits"][0], L["times_logit"][0])
+        why = self._range_reason(x)
+        if why:
+            return None, why
+        if not ok:
+            raise ValueError(f"x: the network's guess is not finite (final time {tf!r}; features outside "
+                             f"the model's range?)")
+        sw = [sw[i, :counts[i]] for i in range(3)]
         self.last_inference_s = time.perf_counter() - t0
-        g = Guess(c0, tf, sw, uf, source="learned")
+        g = Guess._checked(c0, tf, sw, uf, source="learned")
         # the network's estimate of the optimal final time (``solve`` with ``method="auto"``
         # challenges an answer well above it, ``solvers.warm_routes.challenge_learned_answer``)
         g.predicted_tf = float(tf)
@@ -303,7 +328,7 @@ class WarmStartModel:
                 same = (np.array_equal(uf_p, g.u_first) and all(len(a) == len(b) for a, b in zip(sw_p, sw)))
                 return None if same else Guess(c0, tf, sw_p, uf_p, source="learned-propagated")
             g.candidates.append(propagated)
-        g.candidates.append(Guess(c0, tf, source="learned-costate"))
+        g.candidates.append(Guess._checked(c0, tf, source="learned-costate"))
         return g, None
 
 
