@@ -324,6 +324,41 @@ def test_the_tables_nearest_rows_are_the_brute_force_ones():
         ConeNearestNeighbourModel(bad)
 
 
+def test_a_tabled_row_maps_back_as_the_staged_reference_does():
+    """``row_guess`` is one compiled call; on sampled problems (mirror forms, 1–3 cones,
+    touches) its guesses equal the staged numpy path's, and a row with a non-finite multiplier
+    takes the staged path, whose Guess names the fault."""
+    from solvers.warmstart import default_cone_model
+    from slew_env import TaskDistribution
+    table = default_cone_model().table
+    dist = TaskDistribution.family("pointing-cones")
+    n_touch = 0
+    for i in range(60):
+        p = dist.sample(np.random.default_rng([77, i]))
+        cf = cone_canonical_form(p)
+        for rank, j in enumerate(table.nearest(cf.x, 3)):
+            a, b = table.row_guess(p, cf, int(j), rank), table.row_guess_staged(p, cf, int(j), rank)
+            assert a.source == b.source == f"nearest-neighbour[{rank}]"
+            np.testing.assert_allclose(a.costate0, b.costate0, rtol=1e-14, atol=1e-15 * np.abs(b.costate0).max())
+            assert a.tf == pytest.approx(b.tf, rel=1e-15)
+            np.testing.assert_array_equal(a.u_first, b.u_first)
+            for x, y in zip(a.switch_times, b.switch_times):
+                np.testing.assert_allclose(x, y, rtol=1e-14)
+            assert (a.touches is None) == (b.touches is None)
+            for (c1, t1, m1), (c2, t2, m2) in zip(a.touches or [], b.touches or []):
+                assert c1 == c2 and t1 == pytest.approx(t2, rel=1e-14) and m1 == pytest.approx(m2, rel=1e-14)
+            n_touch += bool(b.touches)
+    assert n_touch > 10
+    touched = int(np.flatnonzero(table.a["touch"].sum(axis=1) > 0)[0])
+    bad = {key: v.copy() for key, v in table.a.items()}
+    bad["log_nu"][touched] = np.inf
+    from solvers.warmstart.cone_features import canonical_problem
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    p = canonical_problem(table.a["X"][touched])
+    with pytest.raises(ValueError, match="guess.touches"):
+        ConeNearestNeighbourModel(bad).row_guess(p, cone_canonical_form(p), touched)
+
+
 def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):
     from solvers.warmstart import default_cone_model
     m = default_cone_model()

@@ -187,6 +187,30 @@ def decode_attitude(out, K, i_z, i_logT, i_uf, i_counts, i_times, T_eig):
 
 
 @njit(cache=True)
+def _body_costates(q0, B, z, u, tau):
+    """Canonical unit costates ``z`` (6,) and first-arc signs ``u`` (3,) → ``costate0`` in the
+    problem's units (``λq(0) = q0 ⊗ [0, μ]·τ``, ``λω(0) = λω'·τ²``) and body signs (``np.sign``,
+    as ``Guess`` takes them), by the axial map ``B`` (body vectors are ``B^T`` times canonical
+    ones)."""
+    mu = np.zeros(3)
+    lw = np.zeros(3)
+    uf = np.zeros(3)
+    for i in range(3):
+        for k in range(3):
+            mu[i] += B[k, i] * z[k]
+            lw[i] += B[k, i] * z[3 + k]
+            uf[i] += B[k, i] * u[k]
+        uf[i] = 1.0 if uf[i] > 0.0 else (-1.0 if uf[i] < 0.0 else 0.0)
+    lq = qmul(q0, np.array([0.0, mu[0], mu[1], mu[2]]))
+    c0 = np.empty(7)
+    for i in range(4):
+        c0[i] = lq[i] * tau
+    for i in range(3):
+        c0[4 + i] = lw[i] * tau * tau
+    return c0, uf
+
+
+@njit(cache=True)
 def attitude_guess(q0, qf, J, umax, p, mean, std, weights, biases, act, K, i_z, i_logT, i_uf, i_counts,
                    i_times):
     """A full-attitude network's guess in one compiled call: the canonical form, the network,
@@ -204,22 +228,7 @@ def attitude_guess(q0, qf, J, umax, p, mean, std, weights, biases, act, K, i_z, 
     Jmax = max(J[0], max(J[1], J[2]))
     umx = max(umax[0], max(umax[1], umax[2]))
     tau = math.sqrt(Jmax / umx)
-    # body vectors are A^T times canonical ones
-    mu = np.zeros(3)
-    lw = np.zeros(3)
-    uf = np.zeros(3)
-    for i in range(3):
-        for k in range(3):
-            mu[i] += A[k, i] * z[k]
-            lw[i] += A[k, i] * z[3 + k]
-            uf[i] += A[k, i] * uf_c[k]
-    pure = np.array([0.0, mu[0], mu[1], mu[2]])
-    lq = qmul(q0, pure)
-    c0 = np.empty(7)
-    for i in range(4):
-        c0[i] = lq[i] * tau
-    for i in range(3):
-        c0[4 + i] = lw[i] * tau * tau
+    c0, uf = _body_costates(q0, A, z, uf_c, tau)
     sw = np.zeros((3, K))
     counts = np.zeros(3, np.int64)
     for i in range(3):
@@ -368,6 +377,56 @@ def decode_cone(out, K, n_slots, i_z, i_logT, i_touch, i_tt, i_nu, i_uf, i_count
             times[i, k] = T / (1.0 + math.exp(-float(out[i_times + i * K + k])))
         _sort_head(times[i], best)
     return z, T, p, tc, nu, uf, counts, times
+
+
+@njit(cache=True)
+def cone_row_solution(q0, axial, order, tau, T_ref, n_cones, slots, Z, T_tab, T_ref_tab, U, F, touch, frac, log_nu,
+                      j):
+    """Row ``j`` of a pointing-cones table mapped to a problem (``ConeNearestNeighbourModel
+    .row_guess``; the staged reference is ``cone_features.solution_from_canonical``): the
+    problem's start ``q0``, its canonical form's ``axial`` map, ``order``, ``tau``, ``T_ref``
+    and ``slots``. Returns ``(costate0 (7,), tf, switch_times (3, K): row i holds body axis i's
+    first counts[i], sorted, counts (3,), u_first (3,), touches (m, 3): rows (cone, time,
+    multiplier) in time order, ok)``; ``ok`` is false where a used entry is not finite."""
+    K = F.shape[2]
+    T = T_tab[j] * T_ref / T_ref_tab[j]
+    c0, uf = _body_costates(q0, axial, Z[j], U[j], tau)
+    sw = np.zeros((3, K))
+    counts = np.zeros(3, np.int64)
+    for i in range(3):                       # canonical axis i is body axis order[i]
+        b = order[i]
+        m = 0
+        for k in range(K):
+            f = F[j, i, k]
+            if math.isfinite(f):
+                sw[b, m] = f
+                m += 1
+        counts[b] = m
+        _sort_head(sw[b], m)
+        for k in range(m):
+            sw[b, k] = (sw[b, k] * T) * tau
+    touches = np.zeros((n_cones, 3))
+    m = 0
+    for k in range(n_cones):
+        if touch[j, k] > 0.5:
+            touches[m, 0] = slots[k]
+            touches[m, 1] = frac[j, k] * T * tau
+            touches[m, 2] = math.exp(log_nu[j, k]) * tau
+            m += 1
+    touches = touches[:m]
+    for a in range(1, m):                    # by time (a stable insertion sort, as Guess sorts)
+        b = a
+        while b > 0 and touches[b, 1] < touches[b - 1, 1]:
+            for c in range(3):
+                touches[b, c], touches[b - 1, c] = touches[b - 1, c], touches[b, c]
+            b -= 1
+    tf = T * tau
+    ok = math.isfinite(tf) and tf > 0.0
+    for i in range(7):
+        ok = ok and math.isfinite(c0[i])
+    for i in range(m):
+        ok = ok and 0.0 < touches[i, 1] < tf and math.isfinite(touches[i, 2]) and touches[i, 2] >= 0.0
+    return c0, tf, sw, counts, uf, touches, ok
 
 
 @njit(cache=True, fastmath=True)

@@ -74,13 +74,25 @@ class ConeCanonicalForm:
 
     @cached_property        # (the form is immutable; read for every candidate mapped back)
     def axial(self) -> np.ndarray:
-        """The map of axial body vectors (rates, torques, costates): ``det(A) A``."""
-        return round(float(np.linalg.det(self.A))) * self.A
+        """The map of axial body vectors (rates, torques, costates): ``det(A) A`` (for a signed
+        permutation, det is the product of its signs times the permutation's parity)."""
+        o = self.order
+        det = self.A[0, o[0]] * self.A[1, o[1]] * self.A[2, o[2]]
+        even = (o[0], o[1], o[2]) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+        return (det if even else -det) * self.A
 
     @cached_property
     def order(self) -> list:
         """Canonical axis ``i`` is body axis ``order[i]``."""
-        return [int(np.argmax(np.abs(self.A[i]))) for i in range(3)]
+        return [int(i) for i in self.order_array]
+
+    @cached_property
+    def order_array(self) -> np.ndarray:
+        return np.abs(self.A).argmax(axis=1)
+
+    @cached_property
+    def slots_array(self) -> np.ndarray:
+        return np.array(self.slots, dtype=np.int64)
 
 
 def cone_unsupported_reason(problem: SlewProblem) -> Optional[str]:
@@ -126,6 +138,12 @@ def cone_canonical_form(problem) -> ConeCanonicalForm:
     why = cone_unsupported_reason(problem)
     if why:
         raise ValueError(why)
+    return form_of_supported(problem)
+
+
+def form_of_supported(problem: SlewProblem) -> ConeCanonicalForm:
+    """``cone_canonical_form`` of a ``problem`` whose caller has just found
+    ``cone_unsupported_reason(problem)`` to be ``None`` (the check is not made twice)."""
     key_s = _sensor_key(problem.sensor_axis)
     if key_s not in _CANDIDATES:
         s = np.asarray(problem.sensor_axis, float)

@@ -32,7 +32,7 @@ import numpy as np
 from slew_env import SlewProblem
 from ..core import warmstart_kernels as _k
 from ..guesses import Guess
-from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason,
+from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_unsupported_reason, form_of_supported,
                             solution_from_canonical)
 from .model import ModelFileError, WarmStartModel
 
@@ -81,7 +81,7 @@ class ConeWarmStartModel(WarmStartModel):
         lo_n, hi_n = d.get("n_cones", (1, MAX_CONES))
         if not lo_n <= len(problem.cones) <= hi_n:
             return f"cones: the model covers {lo_n}–{hi_n} cones, got {len(problem.cones)}", None
-        cf = cone_canonical_form(problem)
+        cf = form_of_supported(problem)
         th_deg = math.degrees(math.acos(float(np.clip(cf.x[0], -1.0, 1.0))))
         lo, hi = d.get("angle_deg", (0.0, 180.0))
         if not (lo - 1e-9 <= th_deg <= hi + 1e-9):

@@ -81,7 +81,23 @@ class ConeNearestNeighbourModel:
         return _k.nearest_rows(self._XT, x / self.scale, k, np.empty(k, dtype=np.int64))
 
     def row_guess(self, problem, cf, j, rank=0) -> Guess:
-        """The solution of table row ``j`` mapped to ``problem`` (canonical form ``cf``)."""
+        """The solution of table row ``j`` mapped to ``problem`` (canonical form ``cf``): one
+        compiled call (``warmstart_kernels.cone_row_solution``); a row with an entry that is not
+        finite takes the staged path (``row_guess_staged``), whose ``Guess`` names the fault."""
+        a = self.a
+        c0, tf, sw, counts, uf, tc, ok = _k.cone_row_solution(
+            problem.q0, cf.axial, cf.order_array, cf.tau, cf.T_ref, len(problem.cones), cf.slots_array,
+            a["Z"], a["T"], a["T_ref"], a["U"], a["F"], a["touch"], a["frac"], a["log_nu"], j)
+        if not ok:
+            return self.row_guess_staged(problem, cf, j, rank)
+        touches = [(int(c), float(t), float(nu)) for c, t, nu in tc] or None
+        g = Guess._checked(c0, tf, [sw[i, :counts[i]] for i in range(3)], uf, source=f"nearest-neighbour[{rank}]")
+        g.touches = touches
+        return g
+
+    def row_guess_staged(self, problem, cf, j, rank=0) -> Guess:
+        """``row_guess`` in numpy, stage by stage (the reference the compiled path is tested
+        against)."""
         a = self.a
         T = a["T"][j] * cf.T_ref / a["T_ref"][j]
         sw = [np.sort(f[np.isfinite(f)]) * T for f in a["F"][j]]

@@ -36,7 +36,7 @@ import numpy as np
 from slew_env import SlewProblem
 from ..core import warmstart_kernels as _k
 from ..guesses import Guess
-from .features import N_FEATURES, canonical_form, solution_from_canonical, unsupported_reason
+from .features import N_FEATURES, canonical_form, unsupported_reason
 
 FORMAT = "slewopt-warmstart"
 FORMAT_VERSION = 1
