@@ -30,6 +30,7 @@ from typing import Optional
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -151,7 +152,8 @@ class SlewVectorEnv(VectorEnv):
 
     def step(self, actions):
         if not self._has_reset:
-            raise RuntimeError("call reset() before step()")
+            # as the single environment says it (gymnasium's ResetNeeded; a RuntimeError before)
+            raise ResetNeeded("call reset() before step()")
         if not (type(actions) is np.ndarray and actions.shape == self._actions.shape
                 and actions.dtype.kind in "fiu"):
             actions = as_actions("actions", actions, self._actions.shape)

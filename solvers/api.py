@@ -9,7 +9,8 @@ Methods:
 * ``"multiple-shooting"`` — the same routes with every shooting stage done on
   ``segments`` segments (default 4); the per-axis answer is polished by event-driven
   multiple shooting.
-* ``"indirect"`` / ``"multiple-shooting"`` with keep-out cones — seeded by collocation
+* ``"indirect"`` / ``"multiple-shooting"`` with keep-out cones — single shooting (``segments`` is
+  not used; ``route`` says so and ``method`` is ``"indirect"``), seeded by collocation
   (or the given guess's costates): cones inactive on the collocation answer give the exact
   extremal of the problem without cones, with a certified clearance; a path that touches cones
   at isolated instants gives the exact extremal with costate jumps there
@@ -457,6 +458,10 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
             sol.nfev += spent_table[1]
     elif prob.cones:
         sol = cone_routes.solve_indirect_cones(prob, guess, col_opts, rest)
+        if method == "multiple-shooting":
+            # the cone routes shoot over the whole slew (the touch junctions and the penalty
+            # homotopy are single-shooting problems): say so rather than report "indirect" unasked
+            sol.route = f"multiple-shooting asked; with cones the route shoots singly → {sol.route}"
     else:
         sol = multistart.solve_indirect(prob, method, guess, **rest)
     if challenge and cone_challenge != "never":

@@ -59,6 +59,14 @@ def test_touch_extremal_is_exact_and_not_slower_than_collocation(touch_solutions
     assert v["touch_multipliers"]["value"] > 0.0
 
 
+def test_multiple_shooting_with_cones_says_it_shoots_singly(touch_solutions):
+    _, single, _ = touch_solutions
+    ms = solve(TOUCH, method="multiple-shooting", segments=6)
+    assert ms.success and ms.method == "indirect"
+    assert ms.route.startswith("multiple-shooting asked; with cones the route shoots singly → ")
+    assert ms.tf == pytest.approx(single.tf, rel=1e-9)
+
+
 def test_touch_extremal_replays_from_its_switch_times(touch_solutions):
     """Independent of the costates: the switch times alone (fixed-step RK4) reach the target,
     touch the cone (margin ~0 at one instant) and never enter it."""

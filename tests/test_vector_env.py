@@ -229,6 +229,16 @@ def vec3():
     return vec
 
 
+def test_step_before_reset_asks_for_a_reset():
+    import gymnasium as gym
+    vec = SlewVectorEnv(num_envs=2)
+    with pytest.raises(gym.error.ResetNeeded, match="call reset"):
+        vec.step(np.zeros((2, 3)))
+    vec.reset(seed=1)
+    obs, *_ = vec.step(np.zeros((2, 3)))
+    assert obs.shape[0] == 2
+
+
 @pytest.mark.parametrize("actions", [
     # a fuzz run: (3, 1) and (3,) were broadcast to (3, 3) silently, other shapes gave numpy's
     # broadcast message, text/None/complex numpy's own TypeError (complex a warning)
