@@ -89,10 +89,10 @@ class ConeEnsembleWarmStart:
     def guess_or_reason(self, problem):
         problem = SlewProblem.from_dict(problem)
         t0 = time.perf_counter()
-        why = self.table.covers(problem)
+        why = self.table.covers(problem)     # (its first check is the canonical form's own)
         if why:
             return None, why
-        why, cf = self.network._coverage(problem)
+        why, cf = self.network._coverage(problem, supported=True)
         if why:
             return None, why
         # one canonical form for the table and the network. The nearest neighbour's guess is made

@@ -69,8 +69,10 @@ class ConeWarmStartModel(WarmStartModel):
                                  f"{cone_output_size(self.K)} outputs of a pointing-cones model "
                                  f"(max_switches {self.K})")
 
-    def _coverage(self, problem):
-        why = cone_unsupported_reason(problem)
+    def _coverage(self, problem, supported=False):
+        """``(reason or None, canonical form or None)``; ``supported``: the caller has just found
+        ``cone_unsupported_reason(problem)`` to be ``None`` (not asked again)."""
+        why = None if supported else cone_unsupported_reason(problem)
         if why:
             return why, None
         d = self.domain
@@ -82,7 +84,7 @@ class ConeWarmStartModel(WarmStartModel):
         if not lo_n <= len(problem.cones) <= hi_n:
             return f"cones: the model covers {lo_n}–{hi_n} cones, got {len(problem.cones)}", None
         cf = form_of_supported(problem)
-        th_deg = math.degrees(math.acos(float(np.clip(cf.x[0], -1.0, 1.0))))
+        th_deg = math.degrees(math.acos(min(1.0, max(-1.0, float(cf.x[0])))))
         lo, hi = d.get("angle_deg", (0.0, 180.0))
         if not (lo - 1e-9 <= th_deg <= hi + 1e-9):
             return f"slew angle {th_deg:.3g}° outside the model's range [{lo:g}°, {hi:g}°]", cf

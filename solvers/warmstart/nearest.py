@@ -15,6 +15,7 @@ File format (``.nn.npz``): ``X`` (n, N_FEATURES), ``Z`` (n, 6), ``T`` (n,), ``T_
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import numpy as np
@@ -37,7 +38,7 @@ def table_coverage(problem, unsupported):
         return why
     if problem.rate_max is not None:
         return "rate_max: the table holds problems without rate limits"
-    if not np.isinf(problem.torque_norm):
+    if not math.isinf(problem.torque_norm):
         return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
     return None
 
