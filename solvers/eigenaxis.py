@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -33,6 +34,7 @@ class EigenaxisSlew:
     t: np.ndarray           # time at each sample
     rate: np.ndarray        # θ̇ at each sample
     u: np.ndarray           # torque on each grid interval (worse end), last row the final torque
+    dtheta: Optional[np.ndarray] = None     # the angle of each piece between samples (θ̈ constant on it)
 
 
 def _phase_plane(problem: SlewProblem):
@@ -67,12 +69,26 @@ def _phase_plane(problem: SlewProblem):
                 else:
                     hi = mid
             s_mvc = lo
+    return n, th, a, c, min(s_mvc, _rate_cap(problem, n))
+
+
+def _rate_cap(problem, n) -> float:
+    """The largest ``s = θ̇²`` the rate limit allows about ``n`` (``inf`` without one)."""
     s_rate = math.inf
     if problem.rate_max is not None:
         for i in range(3):
             if abs(n[i]) > 1e-15:
                 s_rate = min(s_rate, (problem.rate_max[i] / abs(n[i])) ** 2)
-    return n, th, a, c, min(s_mvc, s_rate)
+    return s_rate
+
+
+def _profile_nodes(problem, n, a, c, U, p, s_max, th, n_grid):
+    """The sweeps' profile as nodes ``(θ, s, dθ)`` (``topp.capped_nodes``): the grid, and the points
+    where the speed reaches the rate limit inside a grid interval (only where the rate limit
+    is the cap: the maximum-velocity curve of the bound is not a coast)."""
+    fwd, bwd, fa, bd = topp.sweep(a, c, U, float(p), float(s_max), float(th), int(n_grid))
+    s_cap = float(s_max) if _rate_cap(problem, n) <= s_max else math.inf
+    return topp.capped_nodes(fwd, bwd, fa, bd, float(th), int(n_grid), s_cap)
 
 
 def _constant_accel_time(th, acc, s_max) -> float:
@@ -112,23 +128,28 @@ def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
         # accelerations do not depend on the rate, so the profile is bang-(coast-)bang
         acc = topp.accel_interval(a, c, U, 0.0)[1] if math.isinf(p) else topp.accel_interval_pnorm(a, c, U, p, 0.0)[1]
         return _constant_accel_time(th, acc, s_max)
-    fwd, bwd = topp.sweep(a, c, U, p, float(s_max), float(th), int(n_grid))
-    return float(topp.profile_time(fwd, bwd, float(th), int(n_grid)))
+    _, s, steps = _profile_nodes(problem, n, a, c, U, p, s_max, th, n_grid)
+    return float(topp.nodes_time(steps, s))
 
 
-def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
-    """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds."""
+def eigenaxis_slew(problem: SlewProblem, n_grid=4000, ignore_cones=False) -> EigenaxisSlew:
+    """Fastest rest-to-rest eigenaxis slew of ``problem`` within its torque and rate bounds.
+    The eigenaxis path does not avoid keep-out cones: a problem with cones is refused unless
+    ``ignore_cones`` (the slew then may cross them, as a reference time)."""
     problem = _checked(problem)
+    if problem.cones and not ignore_cones:
+        raise ValueError("cones: the eigenaxis slew ignores keep-out cones and may cross them; use "
+                         "solvers.solve(problem) for a slew that avoids them, or ignore_cones=True for the "
+                         "eigenaxis slew as a reference time")
     U, p = problem.torque_max, problem.torque_norm
     n, th, a, c, s_max = _phase_plane(problem)
     if th == 0.0:
         z = np.zeros(1)
-        return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)))
-    theta = np.linspace(0.0, th, n_grid + 1)
-    dth = theta[1] - theta[0]
-    # the compiled sweeps (the baseline runs on every indirect solve, the slew on every fallback)
-    fwd, bwd = topp.sweep(a, c, np.ascontiguousarray(U, float), float(p), float(s_max), float(th), int(n_grid))
-    s_prof = np.maximum(np.minimum(fwd, bwd), 0.0)
+        return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)), np.zeros(0))
+    # the compiled sweeps (the baseline runs on every indirect solve, the slew on every
+    # fallback), on the grid and where the speed reaches the rate limit inside a grid step
+    theta, s_prof, dth = _profile_nodes(problem, n, a, c, np.ascontiguousarray(U, float), p, s_max, th, n_grid)
+    s_prof = np.maximum(s_prof, 0.0)
     rate = np.sqrt(s_prof)
     # exact for piecewise-constant acceleration: dt = 2 dθ / (θ̇_k + θ̇_k+1)
     denom = rate[:-1] + rate[1:]
@@ -141,4 +162,4 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000) -> EigenaxisSlew:
     u = np.vstack([u_start, u_end[-1:]])
     worse = np.max(np.abs(u_end) / U, axis=1) > np.max(np.abs(u_start) / U, axis=1)
     u[:-1][worse] = u_end[worse]
-    return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u)
+    return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u, dth)

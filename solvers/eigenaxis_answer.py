@@ -6,7 +6,8 @@ time-optimal slew and the eigenaxis slew agree to first order and collocation ca
 apart within its accuracy).
 
 The answer is the phase-plane profile of ``eigenaxis.eigenaxis_slew``: on each of its
-``n_grid`` angle steps the acceleration ``θ̈_k`` is constant, so the rate is linear in time,
+``n_grid`` angle steps (split where the speed reaches the rate limit inside one) the
+acceleration ``θ̈_k`` is constant, so the rate is linear in time,
 ``θ̇(t) = θ̇_k + θ̈_k (t - t_k)``, and the torque is ``u = θ̈_k J n + θ̇² (n × J n)`` — affine in
 ``θ̇²`` between the step's ends, where the sweep keeps it within the bound, so within the bound
 throughout. ``control(t)`` is that torque, and ``tf`` the profile's exact duration. The
@@ -91,7 +92,7 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     es = eigenaxis_slew(prob, n_grid)
     t, rate = es.t, es.rate
     s = rate ** 2
-    acc = (s[1:] - s[:-1]) / (2.0 * (th / n_grid))
+    acc = (s[1:] - s[:-1]) / (2.0 * es.dtheta)     # per piece (the grid steps, split where the rate cap starts)
     q0 = np.asarray(prob.q0, float)
     J = np.asarray(prob.inertia, float)
     U = np.asarray(prob.torque_max, float)
@@ -100,7 +101,7 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
 
     def locate(tq):
         tq = np.clip(np.asarray(tq, dtype=float), 0.0, t[-1])
-        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n_grid - 1)
+        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, t.size - 2)
         return k, tq - t[k]
 
     def control(tq):

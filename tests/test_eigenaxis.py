@@ -63,6 +63,18 @@ def test_eigenaxis_rejects_pointing_targets():
         eigenaxis_slew(SlewProblem([1, 1, 1], sensor_target=[0, 1, 0]))
 
 
+def test_eigenaxis_slew_refuses_cones_unless_asked_for_a_reference_time():
+    # a GNC review: the eigenaxis slew of a full-attitude problem with a Sun cone flew the sensor
+    # 39° into the cone without a word, where solve(method="eigenaxis") refuses the problem
+    from slew_env import Cone
+    prob = SlewProblem([1, 1, 1], qf=[math.cos(0.6), 0, 0, math.sin(0.6)],
+                       cones=[Cone([0.0, 0.0, 1.0], half_angle_deg=20.0)])
+    with pytest.raises(ValueError, match="^cones: the eigenaxis slew ignores keep-out cones"):
+        eigenaxis_slew(prob)
+    free = SlewProblem([1, 1, 1], qf=[math.cos(0.6), 0, 0, math.sin(0.6)])
+    assert eigenaxis_slew(prob, ignore_cones=True).tf == eigenaxis_slew(free).tf
+
+
 @pytest.mark.parametrize("J, axis, rate_max", [
     ([1, 1, 1], [1, 2, 3], None),                      # symmetric body: bang-bang
     ([2, 2, 2], [1, -1, 0.5], 0.05),                   # symmetric body, rate cap: bang-coast-bang
@@ -77,12 +89,35 @@ def test_baseline_time_without_gyroscopic_term_is_the_closed_form(J, axis, rate_
     prob = _prob(J, axis, 2.2, torque_max=[1.0, 0.7, 0.4], rate_max=rate_max)
     n, th, a, c, s_max = _phase_plane(prob)
     assert not np.any(c)
-    fwd, bwd = topp.sweep(a, c, np.asarray(prob.torque_max, float), math.inf, float(s_max), float(th), 200000)
+    fwd, bwd, _, _ = topp.sweep(a, c, np.asarray(prob.torque_max, float), math.inf, float(s_max), float(th), 200000)
     fine = topp.profile_time(fwd, bwd, float(th), 200000)
     T = eigenaxis_time(prob, n_grid=1000)
     assert T == pytest.approx(fine, rel=1e-8) and T <= fine * (1 + 1e-14)
-    # the planner's 4000-step grid is conservative by up to ~3e-6 where the rate cap starts
-    assert T <= eigenaxis_slew(prob).tf <= T * (1 + 1e-5)
+    # the planner's profile splits the grid step where the rate cap starts: the closed form too
+    assert eigenaxis_slew(prob).tf == pytest.approx(T, rel=1e-12)
+
+
+def test_a_tight_rate_limit_is_exact_in_the_baseline_and_the_eigenaxis_answer():
+    # a GNC review: 150° about a principal axis of a symmetric body at 0.1 deg/s took 1503.0 s on
+    # the 1,000-step grid against θ/ω + ω/α = 1500.8727 s (the acceleration covers 0.3 % of a step)
+    from solvers import solve
+    from solvers.eigenaxis import eigenaxis_time
+    th, w, J, u = math.radians(150.0), math.radians(0.1), 50.0, 0.1
+    prob = SlewProblem([J, J, J], torque_max=u, qf=[math.cos(th / 2), 0, 0, math.sin(th / 2)], rate_max=w)
+    exact = th / w + w / (u / J)
+    assert exact == pytest.approx(1500.8727, abs=1e-4)
+    for n_grid in (1000, 4000):
+        assert eigenaxis_slew(prob, n_grid=n_grid).tf == pytest.approx(exact, rel=1e-12)
+    assert eigenaxis_time(prob, n_grid=1000) == pytest.approx(exact, rel=1e-12)
+    eig = solve(prob, method="eigenaxis")
+    assert eig.success and eig.tf == pytest.approx(exact, rel=1e-12), eig.message
+    assert eig.verification["rate_limit"]["value"] <= 1 + 1e-9
+    # an asymmetric body off its principal axes (a gyroscopic term): the 1,000-step profile is
+    # within 1e-6 of a 64-times finer one (it was 1.4e-3 above it before the split)
+    prob = SlewProblem([40.0, 55.0, 70.0], torque_max=0.1, rate_max=math.radians(0.1),
+                       qf=[math.cos(th / 2), *(math.sin(th / 2) * np.array([1.0, 2.0, 3.0]) / math.sqrt(14.0))])
+    coarse, fine = eigenaxis_time(prob, n_grid=1000), eigenaxis_time(prob, n_grid=64000)
+    assert fine <= coarse <= fine * (1 + 1e-6)
 
 
 def test_baseline_time_of_an_asymmetric_body_off_axis_is_unchanged():
