@@ -479,6 +479,10 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if fallback == "eigenaxis" and not sol.success:
         end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf
         sol = _eigenaxis_fallback(prob, sol, t0, reserved, end)
+    elif not sol.success and method != "eigenaxis" and eigenaxis_inapplicable(prob) is None:
+        # a user with a slew to fly and no verified answer should learn that one is offered
+        sol.message += (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
+                        "baseline_tf), flyable and verified, not time-optimal.")
     return sol
 
 

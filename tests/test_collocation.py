@@ -402,6 +402,23 @@ def test_an_active_rate_limit_missed_by_the_replay_refines_the_mesh():
     assert 0.999 < sol.verification["rate_limit"]["value"] <= 1.0     # the limit is active, and kept
 
 
+def test_a_tight_rate_limit_refines_the_mesh_where_the_rates_change():
+    # a GNC review: J = [40, 55, 70] kg m², 0.1 N m, 90° about z at 0.1 deg/s. The rates reach
+    # the limit in 1.2 s of a 772 s slew; the uniform meshes (60, 120, 240 intervals) missed the
+    # target by 1.2e-4 rad or more and solve() returned a failure. The mesh refined where the
+    # control or the rates change fast (first here: the arcs are shorter than a quarter of an
+    # interval) follows them
+    th, w = math.radians(90.0), math.radians(0.1)
+    p = SlewProblem([40.0, 55.0, 70.0], torque_max=0.1, rate_max=w, qf=[math.cos(th / 2), 0, 0, math.sin(th / 2)])
+    sol = solvers.solve(p)
+    _assert_verified(sol)
+    assert sol.method == "collocation" and "mesh refined where the control or the rates change fast" in sol.route
+    assert sol.verification["rate_limit"]["value"] <= 1.0
+    # the eigenaxis slew about z, bang-coast-bang: θ/ω + ω/α exactly (it was 0.2 % above that)
+    assert sol.baseline_tf == pytest.approx(th / w + w / (0.1 / 70.0), rel=1e-12)
+    assert 0.85 * sol.baseline_tf < sol.tf < sol.baseline_tf
+
+
 def test_the_replayed_path_keeps_an_active_rate_limit():
     # J = [1, 2, 3], rate limit 0.2 rad/s, 120°: the NLP keeps the limit at its points, the
     # replayed path exceeded it by 4.9e-5 relative between them (edge-case audit); the
