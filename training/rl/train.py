@@ -14,7 +14,8 @@ family; ``training/rl/configs/``). The run directory ``--out`` receives:
 ==============================  ===============================================================
 ``model.zip``                   the final model
 ``vecnormalize.pkl``            its ``VecNormalize`` statistics (load with ``training=False``)
-``config.yaml``                 the resolved configuration (algo, family, seed, every setting)
+``config.yaml``                 the resolved configuration (algo, family, seed, every setting; after
+                                cloning, the ``bc.rl_learning_rate`` that runs as ``learning_rate``)
 ``train_info.json``             steps, wall time, seed, versions, command, BC statistics
 ``checkpoints/``                ``rl_model_<N>_steps.zip`` + ``rl_model_vecnormalize_<N>_steps.pkl``
 ``best/``                       EvalCallback's ``best_model.zip`` + its ``vecnormalize.pkl``
@@ -465,6 +466,11 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
             bc_info = pretrain(model, family, int(bc_pretrain), env_kwargs=cfg.get("env_kwargs") or {},
                                bc_cfg=bc_cfg, seed=bc_seed, expert_data=expert_data,
                                workers=solver_workers, verbose=verbose)
+            if "rl_learning_rate" in bc_info:
+                # the cloning replaced the model's learning rate for the RL phase: record the one
+                # that runs, not the one the config file gave (bc.rl_learning_rate says where from)
+                cfg["hyperparameters"] = dict(cfg.get("hyperparameters") or {})
+                cfg["hyperparameters"]["learning_rate"] = bc_info["rl_learning_rate"]
             if freeze and isinstance(venv, VecNormalize):
                 # the cloned policy reads observations normalised with the expert data's statistics;
                 # letting RL's own (at first very different) states move them breaks it
