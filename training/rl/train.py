@@ -19,7 +19,8 @@ family; ``training/rl/configs/``). The run directory ``--out`` receives:
 ``train_info.json``             steps, wall time, seed, versions, command, BC statistics
 ``checkpoints/``                ``rl_model_<N>_steps.zip`` + ``rl_model_vecnormalize_<N>_steps.pkl``
 ``best/``                       EvalCallback's ``best_model.zip`` + its ``vecnormalize.pkl``
-``eval/evaluations.npz``        EvalCallback's log (deterministic, eval env seed = seed + 10000)
+``eval/evaluations.npz``        EvalCallback's log (deterministic; the eval env is re-seeded with seed +
+                                10000 before each evaluation: the same problems every time)
 ``tb/``                         TensorBoard logs (when tensorboard is installed)
 ==============================  ===============================================================
 
@@ -239,9 +240,28 @@ def wrap_normalize(venv, cfg: dict, gamma: float, training=True):
 
 
 # --------------------------------------------------------------------------- callbacks
-def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback):
-    from stable_baselines3.common.callbacks import (BaseCallback, CallbackList, CheckpointCallback,
-                                                    EvalCallback)
+def _eval_callback_class():
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    class SeededEvalCallback(EvalCallback):
+        """``EvalCallback`` whose environment is re-seeded with ``eval_seed`` before each
+        evaluation: every evaluation flies the same problems, so ``best/`` compares the policy's
+        scores on one sample, not on a new draw each time."""
+
+        def __init__(self, eval_env, eval_seed: int, **kwargs):
+            super().__init__(eval_env, **kwargs)
+            self.eval_seed = int(eval_seed)
+
+        def _on_step(self):
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(self.eval_seed)     # taken by the reset evaluate_policy begins with
+            return super()._on_step()
+
+    return SeededEvalCallback
+
+
+def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback, eval_seed: int):
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
     class SaveVecNormalizeOnBest(BaseCallback):
         """Child of EvalCallback: store the VecNormalize statistics next to ``best_model.zip``."""
@@ -266,11 +286,11 @@ def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback):
     ev = cfg.get("eval") or {}
     if eval_env is not None and ev.get("eval_freq", 0) > 0:
         (out / "best").mkdir(parents=True, exist_ok=True)
-        cbs.append(EvalCallback(eval_env, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
-                                eval_freq=max(int(ev["eval_freq"]) // n_envs, 1), deterministic=True,
-                                best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
-                                callback_on_new_best=SaveVecNormalizeOnBest(out / "best" / "vecnormalize.pkl"),
-                                verbose=0))
+        cbs.append(_eval_callback_class()(
+            eval_env, eval_seed, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
+            eval_freq=max(int(ev["eval_freq"]) // n_envs, 1), deterministic=True,
+            best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
+            callback_on_new_best=SaveVecNormalizeOnBest(out / "best" / "vecnormalize.pkl"), verbose=0))
     if progress_fallback:
         cbs.append(_TqdmProgress())
     return CallbackList(cbs)
@@ -480,7 +500,7 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     save_yaml(cfg, out / "config.yaml")
 
     use_rich = progress_bar and _rich_available()
-    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich)
+    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET)
     if bc_info and bc_info.get("actor_warmup"):
         from .bc import actor_warmup_callback
         callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))
