@@ -27,7 +27,11 @@ family; ``training/rl/configs/``). The run directory ``--out`` receives:
 ``--resume`` takes a checkpoint zip (its ``VecNormalize`` file is found by name), a
 ``model.zip`` or a run directory, and continues counting timesteps
 (``reset_num_timesteps=False``); ``--timesteps`` is then the number of *additional* steps
-(default: what is left of the configured ``n_timesteps``).
+(default: what is left of the configured ``n_timesteps``). Without ``--out`` a run resumed from
+a run directory's files goes on in that directory. A resumed run that writes into a directory
+holding a run's files (in place, or an ``--out`` used before) keeps them: ``train_info.json``'s
+record goes under ``previous_runs``, the new evaluations are appended to ``eval/evaluations.npz``,
+and ``best/best_model.zip`` is replaced only by an evaluation better than the best there.
 """
 from __future__ import annotations
 
@@ -246,11 +250,19 @@ def _eval_callback_class():
     class SeededEvalCallback(EvalCallback):
         """``EvalCallback`` whose environment is re-seeded with ``eval_seed`` before each
         evaluation: every evaluation flies the same problems, so ``best/`` compares the policy's
-        scores on one sample, not on a new draw each time."""
+        scores on one sample, not on a new draw each time. ``history`` (``earlier_evaluations``):
+        a resumed run's earlier evaluations, which ``evaluations.npz`` goes on from, and the
+        best mean reward ``best/best_model.zip`` holds, which a new evaluation must beat."""
 
-        def __init__(self, eval_env, eval_seed: int, **kwargs):
+        def __init__(self, eval_env, eval_seed: int, history: Optional[dict] = None, **kwargs):
             super().__init__(eval_env, **kwargs)
             self.eval_seed = int(eval_seed)
+            if history:
+                self.evaluations_timesteps = list(history["timesteps"])
+                self.evaluations_results = list(history["results"])
+                self.evaluations_length = list(history["ep_lengths"])
+                self.evaluations_successes = list(history["successes"])
+                self.best_mean_reward = float(history["best_mean_reward"])
 
         def _on_step(self):
             if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
@@ -260,7 +272,40 @@ def _eval_callback_class():
     return SeededEvalCallback
 
 
-def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback, eval_seed: int):
+def earlier_evaluations(out: Path, n_eval_episodes: int) -> Optional[dict]:
+    """What a run resumed into ``out`` goes on from: the lists of ``out/eval/evaluations.npz``
+    (``timesteps``, ``results``, ``ep_lengths``, ``successes``: all that ``EvalCallback`` saves)
+    and ``best_mean_reward``, the best earlier mean reward if ``best/best_model.zip`` is there
+    (else -inf); None without earlier evaluations.
+
+    Evaluations of another ``n_eval_episodes`` cannot share the file's arrays: that file is
+    kept as ``evaluations_until_<N>_steps.npz`` (N its last evaluation) and the new file starts
+    afresh; the best mean reward still guards ``best/``.
+    """
+    import numpy as np
+
+    path = out / "eval" / "evaluations.npz"
+    if not path.exists():
+        return None
+    with np.load(path) as f:
+        old = {k: f[k].tolist() for k in f.files}
+    results = old.get("results") or []
+    hist = {"timesteps": old.get("timesteps") or [], "results": results, "ep_lengths": old.get("ep_lengths") or [],
+            "successes": old.get("successes") or [], "best_mean_reward": -np.inf}
+    if results and (out / "best" / "best_model.zip").exists():
+        hist["best_mean_reward"] = max(float(np.mean(r)) for r in results)
+    widths = {len(r) for key in ("results", "ep_lengths", "successes") for r in hist[key]}
+    if widths - {int(n_eval_episodes)}:
+        keep = path.with_name(f"evaluations_until_{hist['timesteps'][-1] if hist['timesteps'] else 0}_steps.npz")
+        path.replace(keep)
+        warnings.warn(f"eval: the earlier evaluations have {sorted(widths)} episodes, not n_eval_episodes="
+                      f"{n_eval_episodes}; they are kept in {keep} and {path} starts afresh")
+        hist.update(timesteps=[], results=[], ep_lengths=[], successes=[])
+    return hist
+
+
+def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback, eval_seed: int,
+               eval_history: Optional[dict] = None):
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
     class SaveVecNormalizeOnBest(BaseCallback):
@@ -287,7 +332,7 @@ def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback, eval_seed: i
     if eval_env is not None and ev.get("eval_freq", 0) > 0:
         (out / "best").mkdir(parents=True, exist_ok=True)
         cbs.append(_eval_callback_class()(
-            eval_env, eval_seed, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
+            eval_env, eval_seed, eval_history, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
             eval_freq=max(int(ev["eval_freq"]) // n_envs, 1), deterministic=True,
             best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
             callback_on_new_best=SaveVecNormalizeOnBest(out / "best" / "vecnormalize.pkl"), verbose=0))
@@ -500,7 +545,13 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     save_yaml(cfg, out / "config.yaml")
 
     use_rich = progress_bar and _rich_available()
-    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET)
+    history = None
+    if resume_files and eval_env is not None:
+        # resumed into a directory with evaluations (its own, in place): append to them, and
+        # replace best/ only with a better evaluation
+        history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)))
+    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET,
+                           history)
     if bc_info and bc_info.get("actor_warmup"):
         from .bc import actor_warmup_callback
         callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))
