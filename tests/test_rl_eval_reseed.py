@@ -5,25 +5,20 @@ drew new problems. It is now re-seeded with seed + 10000 before every evaluation
 """
 import numpy as np
 import pytest
-import yaml
 
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("torch")
 
+from rl_tiny import tiny_config  # noqa: E402
 from training.rl.train import train  # noqa: E402
-
-# learning rate 0 and no observation normalisation: the policy, hence its deterministic actions
-# on a given problem, stay the same from one evaluation to the next
-FROZEN = {"n_envs": 1, "n_timesteps": 256, "policy": "MlpPolicy",
-          "policy_kwargs": {"net_arch": {"pi": [16], "vf": [16]}},
-          "hyperparameters": {"learning_rate": 0.0, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
-          "normalize": False, "env_kwargs": {"max_episode_steps": 30},
-          "eval": {"eval_freq": 64, "n_eval_episodes": 3}, "checkpoint": {"save_freq": 0}}
 
 
 def test_every_evaluation_flies_the_same_problems(tmp_path):
-    cfg = tmp_path / "ppo.yaml"
-    cfg.write_text(yaml.safe_dump({"full-attitude": FROZEN}))
+    # learning rate 0 and no observation normalisation: the policy, hence its deterministic
+    # actions on a given problem, stay the same from one evaluation to the next
+    cfg = tiny_config(tmp_path, n_timesteps=256, normalize=False,
+                      hyperparameters={"learning_rate": 0.0, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
+                      eval={"eval_freq": 64, "n_eval_episodes": 3})
     train("ppo", "full-attitude", config=cfg, seed=4, out=tmp_path / "run")
     ev = np.load(tmp_path / "run" / "eval" / "evaluations.npz")
     assert list(ev["timesteps"]) == [64, 128, 192, 256]

@@ -8,26 +8,20 @@ import shutil
 
 import numpy as np
 import pytest
-import yaml
 
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("torch")
 
+from rl_tiny import tiny_config  # noqa: E402
 from training.rl.train import train  # noqa: E402
 
-TINY = {"n_envs": 1, "n_timesteps": 128, "policy": "MlpPolicy",
-        "policy_kwargs": {"net_arch": {"pi": [16], "vf": [16]}},
-        "hyperparameters": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
-        "normalize": {"norm_obs": True, "norm_reward": False}, "env_kwargs": {"max_episode_steps": 30},
-        "eval": {"eval_freq": 64, "n_eval_episodes": 2}, "checkpoint": {"save_freq": 0}}
 KEYS = ("timesteps", "results", "ep_lengths", "successes")     # all that EvalCallback saves
 
 
 @pytest.fixture(scope="module")
 def first_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("first")
-    cfg = tmp / "ppo.yaml"
-    cfg.write_text(yaml.safe_dump({"full-attitude": TINY}))
+    cfg = tiny_config(tmp, eval={"eval_freq": 64, "n_eval_episodes": 2})
     train("ppo", "full-attitude", config=cfg, seed=2, out=tmp / "run")
     return tmp / "run"
 
