@@ -241,7 +241,10 @@ class SlewEnv(gym.Env):
 
     The shaping term is potential-based with a zero terminal potential, so over an
     episode it adds ``−Φ(s0)`` (a constant of the start) plus, if truncated, the
-    last potential; it does not change which policy is optimal (undiscounted).
+    last potential; it does not change which policy is optimal for the undiscounted
+    return. It is ``Φ(s') − Φ(s)``, not ``γΦ(s') − Φ(s)``: a learner discounting with
+    γ < 1 also pays ``(1 − γ)·|Φ|`` per step (docs/RL.md, "The reward as the learner
+    sees it").
     ``shaping=0`` gives the pure time-optimal reward.
 
     **Constraints** — a violation is the sensor inside a cone by more than 1e-9

@@ -117,18 +117,22 @@ class ConeShieldFilter:
         return v[0] if single else v
 
 
-class ObservingActionWrapper(gym.Wrapper):
+class ObservingActionWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """A ``SlewEnv`` wrapper whose action depends on the current (raw) observation.
 
     Subclasses implement ``act(obs, action) -> (action sent on, dict of info entries)``;
-    the action arrives as a float64 array of shape (3,). ``name`` names the wrapper in the
-    error raised when the inner environment is not a ``SlewEnv``.
+    the action arrives as a float64 array of shape (3,), and pass their constructor's
+    arguments (all but ``env``) to this ``__init__``: Gymnasium records them in ``env.spec``
+    (``RecordConstructorArgs``), so ``env.spec.make()`` and Gymnasium's ``check_env``, which
+    re-create the wrapped environment from its spec, can rebuild the wrapper. ``name`` names
+    the wrapper in the error raised when the inner environment is not a ``SlewEnv``.
     """
 
     name = "this wrapper"
 
-    def __init__(self, env: gym.Env):
-        super().__init__(env)
+    def __init__(self, env: gym.Env, **constructor_args):
+        gym.utils.RecordConstructorArgs.__init__(self, **constructor_args)
+        gym.Wrapper.__init__(self, env)
         if getattr(env.unwrapped, "max_cones", None) is None:
             raise ValueError(f"env: {self.name} wraps a slew_env SlewEnv (it reads its observation)")
         self._obs = None
@@ -161,7 +165,8 @@ class ConeShield(ObservingActionWrapper):
 
     def __init__(self, env: gym.Env, margin_deg: float = 0.5, barrier_rate: float = 20.0, brake: float = 0.6,
                  sweeps: int = 20, gap_deg: float = 1.0):
-        super().__init__(env)
+        super().__init__(env, margin_deg=margin_deg, barrier_rate=barrier_rate, brake=brake, sweeps=sweeps,
+                         gap_deg=gap_deg)
         self.filter = ConeShieldFilter(env.unwrapped.max_cones, margin_deg, barrier_rate, brake, sweeps, gap_deg)
         _warn_control_dt(getattr(env.unwrapped, "control_dt", None), self.filter.margin_deg, self.filter.brake)
 

@@ -65,7 +65,10 @@ class SlewVectorEnv(VectorEnv):
     (about 1.8x at 1024 copies), but when another process or the learner's own
     threads hold a core, every threaded call waits for a descheduled thread and
     a step becomes 5 to 15 times slower than the serial one, which is what
-    happens during training on a small machine. Results are identical either way.
+    happens during training on a small machine; at a load of 1.2 it was 123
+    times slower at 64 copies (8,000 against 982,810 env-steps/s) and 9.5 times
+    at 1024 (``benchmarks/bench_env.py``, session 34). Results are identical
+    either way.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20,

@@ -146,6 +146,37 @@ def expert_action(control, t0: float, dt: float, umax: np.ndarray, mode: str = "
     return np.clip(a, -1.0, 1.0)
 
 
+def solution_actions(solution, control_dt: float = 0.05, n_sub: int = 32) -> np.ndarray:
+    """The actions that fly ``solution`` (a ``solvers.solve`` answer with a trajectory) in a
+    ``SlewEnv`` posed with ``solution.problem`` at control step ``control_dt`` (time units T, the
+    environment's ``control_dt``): ``(ceil(tf / Δt), 3)`` float32, row k the mean of
+    ``u(t) / u_max`` over the step ``[kΔt, (k + 1)Δt)`` (``n_sub`` midpoints; ``Δt = control_dt · T``),
+    the torque cut off at ``tf`` (``SlewSolution.control`` goes on past it).
+
+    ::
+
+        obs, _ = env.reset(options={"problem": sol.problem})
+        for a in solution_actions(sol, env.unwrapped.control_dt):
+            obs, reward, terminated, truncated, info = env.step(a)
+            if terminated or truncated:
+                break
+    """
+    prob = solution.problem
+    if prob is None or not len(solution.t):
+        raise ValueError("solution: no trajectory to fly (a solve that failed before one was found?)")
+    tf = float(solution.tf)
+
+    def control(t):
+        t = np.asarray(t, dtype=float)
+        return np.where((t <= tf)[..., None], solution.control(t), 0.0)
+
+    dt = float(control_dt) * prob.time_unit
+    umax = np.asarray(prob.torque_max, dtype=float)
+    n_steps = int(math.ceil(tf / dt - 1e-9))
+    return np.array([expert_action(control, k * dt, dt, umax, "average", n_sub) for k in range(n_steps)],
+                    dtype=np.float32).reshape(n_steps, 3)
+
+
 def expert_rollout(env, rec: dict, mode: str = "average", n_sub: int = 32) -> Optional[dict]:
     """Fly the optimal control of ``rec`` in ``env`` (a ``SlewEnv``) for ``ceil(tf / dt)`` steps.
 

@@ -162,7 +162,7 @@ class CaptureHandover(ObservingActionWrapper):
 
     def __init__(self, env: gym.Env, deg: float = 1.0, kp: float = 5.0, damping: float = 0.8,
                  law: str = "pd", brake: float = 0.9, aim_deg: float = 0.8):
-        super().__init__(env)
+        super().__init__(env, deg=deg, kp=kp, damping=damping, law=law, brake=brake, aim_deg=aim_deg)
         kw = check({"deg": deg, "kp": kp, "damping": damping, "law": law, "brake": brake, "aim_deg": aim_deg})
         self.deg, self.kp, self.damping = kw["deg"], kw["kp"], kw["damping"]
         self.law, self.brake, self.aim_deg = kw["law"], kw["brake"], kw["aim_deg"]

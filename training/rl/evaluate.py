@@ -268,6 +268,25 @@ def summarise(episodes: list) -> dict:
 
 
 # --------------------------------------------------------------------------- the evaluation
+def default_report_dir(policy, family: str, seed: int) -> Path:
+    """Where ``evaluate`` writes without ``out``: beside the policy.
+
+    ``eval-<family>-seed<seed>`` for a run directory, its ``model.zip`` or
+    ``best/best_model.zip`` (one model to a folder); ``eval-<zip name>-<family>-seed<seed>``
+    for any other zip, such as a checkpoint ``rl_model_<N>_steps.zip``, so that the checkpoints
+    of one run get a report each; ``runs/eval-<policy dir>-<family>-seed<seed>`` for a shipped
+    policy (never into the installed package).
+    """
+    p = Path(resolve_policy(policy))
+    pdir = p if p.is_dir() else p.parent
+    shipped = Path(__file__).resolve().parent / "policies"
+    if shipped in pdir.resolve().parents or pdir.resolve() == shipped:
+        return Path("runs") / f"eval-{pdir.name}-{family}-seed{seed}"
+    if p.is_dir() or p.name in ("model.zip", "best_model.zip"):
+        return pdir / f"eval-{family}-seed{seed}"
+    return pdir / f"eval-{p.stem}-{family}-seed{seed}"
+
+
 def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEFAULT_EVAL_SEED, out=None,
              plot_k: int = 3, solutions=None, solver_workers: int = 1, solve_options=None,
              max_steps: int = DEFAULT_MAX_STEPS, progress: bool = True, command: Optional[str] = None,
@@ -281,7 +300,8 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     law near the target (``training.rl.capture.CaptureHandover``: PD settling or braking curve).
 
     Writes ``report.md``, ``results.json`` and (``plot_k > 0``) ``overlay.png`` to ``out``
-    (default ``<policy dir>/eval-<family>-seed<seed>``).
+    (default ``default_report_dir``: ``<policy dir>/eval-<family>-seed<seed>``, with the zip's
+    name for a checkpoint).
     """
     from slew_env import SlewProblem
 
@@ -298,13 +318,7 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     if family not in FAMILIES:
         raise ValueError(f"--family: expected one of {', '.join(FAMILIES)}, got {family!r}")
     pdir = Path(policy) if Path(policy).is_dir() else Path(policy).parent
-    if out is None:
-        # beside a run's own policy; a shipped policy's report goes to runs/, not into the
-        # installed package
-        shipped = Path(__file__).resolve().parent / "policies"
-        inside = shipped in pdir.resolve().parents or pdir.resolve() == shipped
-        out = (Path("runs") / f"eval-{pdir.name}-{family}-seed{seed}") if inside else pdir / f"eval-{family}-seed{seed}"
-    out = Path(out)
+    out = Path(out) if out is not None else default_report_dir(policy, family, seed)
     out.mkdir(parents=True, exist_ok=True)
 
     t_solve = time.perf_counter()
@@ -597,7 +611,8 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--n", type=int, default=200, help="held-out problems (default 200)")
     p.add_argument("--seed", type=int, default=DEFAULT_EVAL_SEED,
                    help=f"seed of the held-out problems (default {DEFAULT_EVAL_SEED})")
-    p.add_argument("--out", metavar="DIR", help="report directory (default <policy dir>/eval-<family>-seed<S>)")
+    p.add_argument("--out", metavar="DIR", help="report directory (default <policy dir>/eval-<family>-seed<S>; "
+                   "eval-<zip name>-<family>-seed<S> for a checkpoint or any zip but model.zip / best_model.zip)")
     p.add_argument("--plot-k", type=int, default=3, help="problems in overlay.png (default 3; 0: no plot)")
     p.add_argument("--solutions", metavar="FILE.jsonl",
                    help="solver answers of the held-out problems (slew generate format; created or continued; "

@@ -14,18 +14,24 @@ family; ``training/rl/configs/``). The run directory ``--out`` receives:
 ==============================  ===============================================================
 ``model.zip``                   the final model
 ``vecnormalize.pkl``            its ``VecNormalize`` statistics (load with ``training=False``)
-``config.yaml``                 the resolved configuration (algo, family, seed, every setting)
+``config.yaml``                 the resolved configuration (algo, family, seed, every setting; after
+                                cloning, the ``bc.rl_learning_rate`` that runs as ``learning_rate``)
 ``train_info.json``             steps, wall time, seed, versions, command, BC statistics
 ``checkpoints/``                ``rl_model_<N>_steps.zip`` + ``rl_model_vecnormalize_<N>_steps.pkl``
 ``best/``                       EvalCallback's ``best_model.zip`` + its ``vecnormalize.pkl``
-``eval/evaluations.npz``        EvalCallback's log (deterministic, eval env seed = seed + 10000)
+``eval/evaluations.npz``        EvalCallback's log (deterministic; the eval env is re-seeded with seed +
+                                10000 before each evaluation: the same problems every time)
 ``tb/``                         TensorBoard logs (when tensorboard is installed)
 ==============================  ===============================================================
 
 ``--resume`` takes a checkpoint zip (its ``VecNormalize`` file is found by name), a
 ``model.zip`` or a run directory, and continues counting timesteps
 (``reset_num_timesteps=False``); ``--timesteps`` is then the number of *additional* steps
-(default: what is left of the configured ``n_timesteps``).
+(default: what is left of the configured ``n_timesteps``). Without ``--out`` a run resumed from
+a run directory's files goes on in that directory. A resumed run that writes into a directory
+holding a run's files (in place, or an ``--out`` used before) keeps them: ``train_info.json``'s
+record goes under ``previous_runs``, the new evaluations are appended to ``eval/evaluations.npz``,
+and ``best/best_model.zip`` is replaced only by an evaluation better than the best there.
 """
 from __future__ import annotations
 
@@ -238,9 +244,69 @@ def wrap_normalize(venv, cfg: dict, gamma: float, training=True):
 
 
 # --------------------------------------------------------------------------- callbacks
-def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback):
-    from stable_baselines3.common.callbacks import (BaseCallback, CallbackList, CheckpointCallback,
-                                                    EvalCallback)
+def _eval_callback_class():
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    class SeededEvalCallback(EvalCallback):
+        """``EvalCallback`` whose environment is re-seeded with ``eval_seed`` before each
+        evaluation: every evaluation flies the same problems, so ``best/`` compares the policy's
+        scores on one sample, not on a new draw each time. ``history`` (``earlier_evaluations``):
+        a resumed run's earlier evaluations, which ``evaluations.npz`` goes on from, and the
+        best mean reward ``best/best_model.zip`` holds, which a new evaluation must beat."""
+
+        def __init__(self, eval_env, eval_seed: int, history: Optional[dict] = None, **kwargs):
+            super().__init__(eval_env, **kwargs)
+            self.eval_seed = int(eval_seed)
+            if history:
+                self.evaluations_timesteps = list(history["timesteps"])
+                self.evaluations_results = list(history["results"])
+                self.evaluations_length = list(history["ep_lengths"])
+                self.evaluations_successes = list(history["successes"])
+                self.best_mean_reward = float(history["best_mean_reward"])
+
+        def _on_step(self):
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(self.eval_seed)     # taken by the reset evaluate_policy begins with
+            return super()._on_step()
+
+    return SeededEvalCallback
+
+
+def earlier_evaluations(out: Path, n_eval_episodes: int) -> Optional[dict]:
+    """What a run resumed into ``out`` goes on from: the lists of ``out/eval/evaluations.npz``
+    (``timesteps``, ``results``, ``ep_lengths``, ``successes``: all that ``EvalCallback`` saves)
+    and ``best_mean_reward``, the best earlier mean reward if ``best/best_model.zip`` is there
+    (else -inf); None without earlier evaluations.
+
+    Evaluations of another ``n_eval_episodes`` cannot share the file's arrays: that file is
+    kept as ``evaluations_until_<N>_steps.npz`` (N its last evaluation) and the new file starts
+    afresh; the best mean reward still guards ``best/``.
+    """
+    import numpy as np
+
+    path = out / "eval" / "evaluations.npz"
+    if not path.exists():
+        return None
+    with np.load(path) as f:
+        old = {k: f[k].tolist() for k in f.files}
+    results = old.get("results") or []
+    hist = {"timesteps": old.get("timesteps") or [], "results": results, "ep_lengths": old.get("ep_lengths") or [],
+            "successes": old.get("successes") or [], "best_mean_reward": -np.inf}
+    if results and (out / "best" / "best_model.zip").exists():
+        hist["best_mean_reward"] = max(float(np.mean(r)) for r in results)
+    widths = {len(r) for key in ("results", "ep_lengths", "successes") for r in hist[key]}
+    if widths - {int(n_eval_episodes)}:
+        keep = path.with_name(f"evaluations_until_{hist['timesteps'][-1] if hist['timesteps'] else 0}_steps.npz")
+        path.replace(keep)
+        warnings.warn(f"eval: the earlier evaluations have {sorted(widths)} episodes, not n_eval_episodes="
+                      f"{n_eval_episodes}; they are kept in {keep} and {path} starts afresh")
+        hist.update(timesteps=[], results=[], ep_lengths=[], successes=[])
+    return hist
+
+
+def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback, eval_seed: int,
+               eval_history: Optional[dict] = None):
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
     class SaveVecNormalizeOnBest(BaseCallback):
         """Child of EvalCallback: store the VecNormalize statistics next to ``best_model.zip``."""
@@ -265,11 +331,11 @@ def _callbacks(cfg, out: Path, eval_env, n_envs, progress_fallback):
     ev = cfg.get("eval") or {}
     if eval_env is not None and ev.get("eval_freq", 0) > 0:
         (out / "best").mkdir(parents=True, exist_ok=True)
-        cbs.append(EvalCallback(eval_env, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
-                                eval_freq=max(int(ev["eval_freq"]) // n_envs, 1), deterministic=True,
-                                best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
-                                callback_on_new_best=SaveVecNormalizeOnBest(out / "best" / "vecnormalize.pkl"),
-                                verbose=0))
+        cbs.append(_eval_callback_class()(
+            eval_env, eval_seed, eval_history, n_eval_episodes=int(ev.get("n_eval_episodes", 20)),
+            eval_freq=max(int(ev["eval_freq"]) // n_envs, 1), deterministic=True,
+            best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
+            callback_on_new_best=SaveVecNormalizeOnBest(out / "best" / "vecnormalize.pkl"), verbose=0))
     if progress_fallback:
         cbs.append(_TqdmProgress())
     return CallbackList(cbs)
@@ -465,6 +531,11 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
             bc_info = pretrain(model, family, int(bc_pretrain), env_kwargs=cfg.get("env_kwargs") or {},
                                bc_cfg=bc_cfg, seed=bc_seed, expert_data=expert_data,
                                workers=solver_workers, verbose=verbose)
+            if "rl_learning_rate" in bc_info:
+                # the cloning replaced the model's learning rate for the RL phase: record the one
+                # that runs, not the one the config file gave (bc.rl_learning_rate says where from)
+                cfg["hyperparameters"] = dict(cfg.get("hyperparameters") or {})
+                cfg["hyperparameters"]["learning_rate"] = bc_info["rl_learning_rate"]
             if freeze and isinstance(venv, VecNormalize):
                 # the cloned policy reads observations normalised with the expert data's statistics;
                 # letting RL's own (at first very different) states move them breaks it
@@ -474,7 +545,13 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     save_yaml(cfg, out / "config.yaml")
 
     use_rich = progress_bar and _rich_available()
-    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich)
+    history = None
+    if resume_files and eval_env is not None:
+        # resumed into a directory with evaluations (its own, in place): append to them, and
+        # replace best/ only with a better evaluation
+        history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)))
+    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET,
+                           history)
     if bc_info and bc_info.get("actor_warmup"):
         from .bc import actor_warmup_callback
         callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))

@@ -1,0 +1,52 @@
+"""``config.yaml`` after behaviour cloning records the learning rate the RL phase runs with.
+
+``bc.rl_learning_rate`` replaces the model's learning rate after cloning; the run's
+``config.yaml`` kept the configured ``hyperparameters.learning_rate`` (3e-4 where 1e-4 ran).
+"""
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("torch")
+
+from training.rl.train import train  # noqa: E402
+
+# problems 0 and 1 of seed 100, already solved: the cloning reads them and solves nothing
+DATA = Path(__file__).resolve().parent / "data" / "full-attitude-small.jsonl"
+TINY = {"n_envs": 1, "n_timesteps": 0, "policy": "MlpPolicy",
+        "policy_kwargs": {"net_arch": {"pi": [16], "vf": [16]}},
+        "hyperparameters": {"learning_rate": 3.0e-4, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
+        "normalize": {"norm_obs": True, "norm_reward": False},
+        "env_kwargs": {"max_episode_steps": 50}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+        "bc": {"epochs": 2, "value_pretrain": False, "rl_learning_rate": 7.0e-5}}
+
+
+def _clone_then_train(tmp_path, entry, timesteps):
+    """(saved config.yaml, saved model) of a run that clones 2 expert problems, then trains."""
+    from stable_baselines3 import PPO
+
+    cfg = tmp_path / "ppo.yaml"
+    cfg.write_text(yaml.safe_dump({"full-attitude": entry}))
+    data = tmp_path / "experts.jsonl"
+    shutil.copy(DATA, data)
+    out = tmp_path / "run"
+    train("ppo", "full-attitude", config=cfg, timesteps=timesteps, out=out, bc_pretrain=2, bc_seed=100,
+          expert_data=data)
+    return yaml.safe_load((out / "config.yaml").read_text()), PPO.load(str(out / "model.zip"), device="cpu")
+
+
+def test_config_yaml_records_the_learning_rate_set_by_cloning(tmp_path):
+    saved, model = _clone_then_train(tmp_path, TINY, 64)
+    assert model.learning_rate == 7.0e-5
+    assert model.policy.optimizer.param_groups[0]["lr"] == 7.0e-5
+    assert saved["hyperparameters"]["learning_rate"] == 7.0e-5      # was 3e-4, the configured value
+    assert saved["bc"]["rl_learning_rate"] == 7.0e-5
+    assert saved["hyperparameters"]["n_steps"] == 64                 # the rest as configured
+
+
+def test_without_rl_learning_rate_the_configured_one_stays(tmp_path):
+    saved, model = _clone_then_train(tmp_path, dict(TINY, bc={"epochs": 2, "value_pretrain": False}), 0)
+    assert saved["hyperparameters"]["learning_rate"] == 3.0e-4 == model.learning_rate
