@@ -50,6 +50,8 @@ _UNIT_ROUNDING_TOL = 8.0 * np.finfo(float).eps
 
 FIELDS = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_axis",
           "sensor_target", "omegaf", "cones", "rate_max")
+# accepted on input besides FIELDS (``to_dict`` writes the field itself): the rate limit in deg/s
+INPUT_ONLY_FIELDS = ("rate_max_deg",)
 
 
 def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=False):
@@ -256,7 +258,9 @@ class SlewProblem:
     cones : list of ``Cone`` or dicts, default none
         Keep-out cones on the sensor axis.
     rate_max : number or 3 positive numbers, optional
-        Per-axis body-rate limit ``|ω_i| ≤ rate_max_i``.
+        Per-axis body-rate limit ``|ω_i| ≤ rate_max_i`` (rad per time unit).
+    rate_max_deg : number or 3 positive numbers, optional
+        The same limit in degrees per time unit (give one of the two; stored as ``rate_max``).
     """
 
     __slots__ = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_axis",
@@ -264,7 +268,7 @@ class SlewProblem:
 
     def __init__(self, inertia, torque_max=1.0, torque_norm="inf", q0=(1.0, 0.0, 0.0, 0.0),
                  omega0=(0.0, 0.0, 0.0), qf=None, sensor_axis=(1.0, 0.0, 0.0),
-                 sensor_target=None, omegaf=(0.0, 0.0, 0.0), cones=(), rate_max=None):
+                 sensor_target=None, omegaf=(0.0, 0.0, 0.0), cones=(), rate_max=None, rate_max_deg=None):
         self.inertia = _vector("inertia", inertia, 3, positive=True)
         self.torque_max = _vector("torque_max", torque_max, 3, positive=True, allow_scalar=True)
         self.torque_norm = _torque_norm(torque_norm)
@@ -296,6 +300,11 @@ class SlewProblem:
         if isinstance(cones, (str, bytes)) or not hasattr(cones, "__iter__"):
             raise ValueError(f"cones: expected a list of cones, got {cones!r}")
         self.cones = tuple(Cone.from_dict(c, _field=f"cones[{k}]") for k, c in enumerate(cones))
+        if rate_max_deg is not None:
+            if rate_max is not None:
+                raise ValueError("rate_max, rate_max_deg: give the rate limit once, in rad (rate_max) or in degrees "
+                                 "(rate_max_deg) per time unit")
+            rate_max = np.radians(_vector("rate_max_deg", rate_max_deg, 3, positive=True, allow_scalar=True))
         if rate_max is None:
             self.rate_max = None
         else:
@@ -431,9 +440,10 @@ class SlewProblem:
             return d
         if not isinstance(d, dict):
             raise ValueError(f"problem: expected a SlewProblem or a dict (JSON object), got {type(d).__name__}")
-        unknown = set(d) - set(FIELDS)
+        unknown = set(d) - set(FIELDS) - set(INPUT_ONLY_FIELDS)
         if unknown:
-            raise ValueError(f"problem: unknown field(s) {sorted(unknown)}; known fields are {list(FIELDS)}")
+            raise ValueError(f"problem: unknown field(s) {sorted(unknown)}; known fields are "
+                             f"{list(FIELDS + INPUT_ONLY_FIELDS)}")
         if d.get("inertia") is None:
             raise ValueError("inertia: missing (3 principal moments of inertia)")
         kwargs = {k: v for k, v in d.items() if v is not None or k in ("qf", "sensor_target", "rate_max")}
@@ -477,6 +487,8 @@ class SlewProblem:
             d["sensor_target"] = None
         if "sensor_target" in changes and changes["sensor_target"] is not None:
             d["qf"] = None
+        if changes.get("rate_max_deg") is not None:
+            d["rate_max"] = None
         d.update(changes)
         return SlewProblem.from_dict(d)
 

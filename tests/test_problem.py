@@ -626,3 +626,20 @@ def test_unreadable_problem_files_are_clear_errors(tmp_path):
         SlewProblem.from_json('{"inertia": [1' + "0" * 5000 + ', 1, 1], "qf": [1, 0, 0, 0]}')
     with pytest.raises(ValueError, match=r"^t: expected a task array"):
         SlewProblem.from_task_array([1.0, 2.0])
+
+
+def test_a_rate_limit_in_degrees():
+    # a GNC review: rate_max=2 meant as deg/s was taken as 2 rad/s without a word; cones take
+    # half_angle_deg, and the rate limit now takes rate_max_deg the same way
+    deg = SlewProblem([40, 55, 70], torque_max=0.1, qf=[0.0, 0.0, 0.0, 1.0], rate_max_deg=[1.0, 2.0, 0.5])
+    np.testing.assert_array_equal(deg.rate_max, np.radians([1.0, 2.0, 0.5]))
+    assert "rate_max_deg" not in deg.to_dict() and SlewProblem.from_dict(deg.to_dict()) == deg
+    js = SlewProblem.from_json('{"inertia": [40, 55, 70], "qf": [0, 0, 0, 1], "rate_max_deg": 2}')
+    np.testing.assert_array_equal(js.rate_max, np.full(3, math.radians(2.0)))
+    assert deg.replace(rate_max_deg=3.0).rate_max.tolist() == [math.radians(3.0)] * 3
+    with pytest.raises(ValueError, match=r"^rate_max, rate_max_deg: give the rate limit once"):
+        SlewProblem([1, 1, 1], qf=[0, 0, 0, 1], rate_max=0.1, rate_max_deg=5.0)
+    with pytest.raises(ValueError, match=r"^rate_max_deg: "):
+        SlewProblem([1, 1, 1], qf=[0, 0, 0, 1], rate_max_deg=-1.0)
+    with pytest.raises(ValueError, match=r"^problem: unknown field\(s\) \['rate_max_rad'\].*'rate_max_deg'"):
+        SlewProblem.from_dict({"inertia": [1, 1, 1], "qf": [0, 0, 0, 1], "rate_max_rad": 1.0})
