@@ -50,3 +50,21 @@ def test_config_yaml_records_the_learning_rate_set_by_cloning(tmp_path):
 def test_without_rl_learning_rate_the_configured_one_stays(tmp_path):
     saved, model = _clone_then_train(tmp_path, dict(TINY, bc={"epochs": 2, "value_pretrain": False}), 0)
     assert saved["hyperparameters"]["learning_rate"] == 3.0e-4 == model.learning_rate
+
+
+def test_a_hyperparameter_set_on_resume_is_the_one_that_runs(tmp_path):
+    # config.yaml recorded a --set hyperparameters.X given on resume, but SB3's load kept the
+    # saved value, so the record and the run disagreed (an RL review)
+    from stable_baselines3 import PPO
+    from rl_tiny import tiny_config
+
+    out = tmp_path / "run"
+    train("ppo", "full-attitude", config=tiny_config(tmp_path), timesteps=64, out=out)
+    train("ppo", "full-attitude", resume=str(out), timesteps=64,
+          overrides=["hyperparameters.learning_rate=2.5e-5", "hyperparameters.ent_coef=0.01"])
+    saved = yaml.safe_load((out / "config.yaml").read_text())
+    model = PPO.load(str(out / "model.zip"), device="cpu")
+    assert saved["hyperparameters"]["learning_rate"] == 2.5e-5 == model.learning_rate
+    assert model.policy.optimizer.param_groups[0]["lr"] == 2.5e-5
+    assert saved["hyperparameters"]["ent_coef"] == 0.01 == model.ent_coef
+    assert model.n_steps == 64 and model.num_timesteps == 128        # the rest as saved
