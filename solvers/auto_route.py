@@ -217,9 +217,32 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
         col.wall_time = spent()
         return col
     ind = multistart.solve_indirect(prob, "indirect", guess, **dict(options, time_budget=stage_budget.left(budget, spent())))
+    if not ind.success and _worst_excess(col) < _worst_excess(ind):
+        # both failed: the record nearer to passing its checks is the more useful one (with a
+        # tight rate limit the multi-start, which ignores the limit, returned an answer 71 times
+        # over it where collocation had missed its target by 1.4 times its tolerance)
+        col.route = (f"auto: collocation failed ({col.route}); the indirect multi-start failed too "
+                     f"({ind.message[:200]}): the collocation answer, the nearer to its checks")
+        col.nit += ind.nit
+        col.nfev += ind.nfev
+        col.wall_time = spent()
+        return col
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()
     return ind
+
+
+def _worst_excess(sol) -> float:
+    """The largest ``value / tol`` among ``sol``'s failed checks (how far from passing it is);
+    ``inf`` without failed checks to measure (no verified candidate at all, a spent budget)."""
+    worst = -math.inf
+    for c in (sol.verification or {}).values():
+        if not c.get("passed", True):
+            v, tol = c.get("value"), c.get("tol")
+            if not (isinstance(v, (int, float)) and isinstance(tol, (int, float)) and tol > 0 and math.isfinite(v)):
+                return math.inf
+            worst = max(worst, v / tol)
+    return worst if worst > -math.inf else math.inf
 
 
 def _pointing_singular_check(prob) -> bool:

@@ -419,6 +419,21 @@ def test_a_tight_rate_limit_refines_the_mesh_where_the_rates_change():
     assert 0.85 * sol.baseline_tf < sol.tf < sol.baseline_tf
 
 
+def test_when_every_route_fails_the_record_nearest_its_checks_is_returned():
+    # the tight rate limit above on the default mesh alone: collocation misses the target by a few
+    # times its tolerance, and the indirect multi-start, which ignores the rate limit, ends 71 times
+    # over it with tf = 131.8 (a GNC review read that as the answer's time); the failure returned
+    # is collocation's
+    th, w = math.radians(90.0), math.radians(0.1)
+    p = SlewProblem([40.0, 55.0, 70.0], torque_max=0.1, rate_max=w, qf=[math.cos(th / 2), 0, 0, math.sin(th / 2)])
+    sol = solvers.solve(p, collocation={"n_intervals": 60})
+    assert not sol.success and sol.method == "collocation"
+    assert "the indirect multi-start failed too" in sol.route and "the nearer to its checks" in sol.route
+    failed = {k for k, c in sol.verification.items() if not c["passed"]}
+    assert failed == {"boundary_attitude_error"}
+    assert 700.0 < sol.tf < 901.3
+
+
 def test_the_replayed_path_keeps_an_active_rate_limit():
     # J = [1, 2, 3], rate limit 0.2 rad/s, 120°: the NLP keeps the limit at its points, the
     # replayed path exceeded it by 4.9e-5 relative between them (edge-case audit); the
