@@ -482,7 +482,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     elif not sol.success and method != "eigenaxis" and eigenaxis_inapplicable(prob) is None:
         # a user with a slew to fly and no verified answer should learn that one is offered
         sol.message += (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
-                        "baseline_tf), flyable and verified, not time-optimal.")
+                        "baseline_tf), checked by its own replay, not time-optimal.")
     return sol
 
 

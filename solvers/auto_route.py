@@ -233,16 +233,21 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
 
 
 def _worst_excess(sol) -> float:
-    """The largest ``value / tol`` among ``sol``'s failed checks (how far from passing it is);
-    ``inf`` without failed checks to measure (no verified candidate at all, a spent budget)."""
-    worst = -math.inf
-    for c in (sol.verification or {}).values():
+    """How far ``sol`` is from passing its checks: 0 where every check passed (an answer that
+    failed for another reason, slower than the eigenaxis slew, say), else the largest ``value /
+    tol`` of its failed checks; ``inf`` without checks to measure (no candidate verified at all,
+    a spent budget, a failed check without a positive tolerance)."""
+    checks = sol.verification or {}
+    if not checks:
+        return math.inf
+    worst = 0.0
+    for c in checks.values():
         if not c.get("passed", True):
             v, tol = c.get("value"), c.get("tol")
             if not (isinstance(v, (int, float)) and isinstance(tol, (int, float)) and tol > 0 and math.isfinite(v)):
                 return math.inf
             worst = max(worst, v / tol)
-    return worst if worst > -math.inf else math.inf
+    return worst
 
 
 def _pointing_singular_check(prob) -> bool:

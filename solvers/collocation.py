@@ -787,8 +787,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         for k in range(LOCAL_ROUNDS):
             left = time_budget - (time.perf_counter() - t_start)
             edges = _local_edges(last, edges) if left >= 2.0 else None
-            if edges is None:
-                break
+            if edges is None or edges.size - 1 > LOCAL_MAX_INTERVALS:
+                break       # (a control that changes fast everywhere: no local refinement to make)
             n_loc = edges.size - 1
             fine = attempt(n_loc, list(np.diff(edges)), last, left,
                            f"mesh refined where the control or the rates change fast ({n_loc} intervals, round {k + 1})")
@@ -820,6 +820,7 @@ def _short_rate_arcs(prob, h) -> bool:
     t_reach = np.asarray(prob.rate_max, float) * np.asarray(prob.inertia, float) / np.asarray(prob.torque_max, float)
     return bool(np.max(t_reach) < 0.25 * h)
 LOCAL_ROUNDS = 3    # rounds of that refinement after the uniform ones
+LOCAL_MAX_INTERVALS = 600   # and the most intervals it builds (its NLP cannot be interrupted)
 
 
 def _local_edges(sol, edges):

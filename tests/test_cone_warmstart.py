@@ -357,6 +357,11 @@ def test_a_tabled_row_maps_back_as_the_staged_reference_does():
     p = canonical_problem(table.a["X"][touched])
     with pytest.raises(ValueError, match="guess.touches"):
         ConeNearestNeighbourModel(bad).row_guess(p, cone_canonical_form(p), touched)
+    # a NaN first-arc sign: the compiled path had made it 0 on every axis (a review)
+    bad = {key: v.copy() for key, v in table.a.items()}
+    bad["U"][touched, 1] = np.nan
+    with pytest.raises(ValueError, match="guess.u_first"):
+        ConeNearestNeighbourModel(bad).row_guess(p, cone_canonical_form(p), touched)
 
 
 def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):

@@ -168,3 +168,32 @@ def test_pnorm_baseline_time_unchanged():
     from solvers.eigenaxis import eigenaxis_time
     prob = _prob([1.0, 0.6, 0.35], [0.3, -0.5, 0.8], 2.2, torque_max=[1.0, 0.8, 0.6], torque_norm=2.0)
     assert eigenaxis_time(prob, n_grid=1000) == pytest.approx(REF_PNORM_TIME, rel=1e-12)
+
+
+def test_both_sweeps_reaching_the_rate_cap_at_one_angle_give_one_point():
+    # a review: 2.23 rad at a rate cap the slew reaches exactly at its middle (a tent whose apex
+    # is the cap): the point was added twice (a zero-length piece, NaN torque at n_grid=7), and a
+    # piece a rounding error long gave 1.125 times the torque bound at n_grid=1000
+    from solvers.eigenaxis_answer import eigenaxis_answer
+    th, J = 2.23, 36.0
+    prob = SlewProblem([J] * 3, torque_max=1.0, qf=[math.cos(th / 2), math.sin(th / 2), 0, 0],
+                       rate_max=[0.2488864087178013, 1e3, 1e3])
+    exact = 2.0 * math.sqrt(th / (1.0 / J))           # the cap is the triangle's peak
+    for n_grid in (7, 8, 999, 1000, 4000):
+        es = eigenaxis_slew(prob, n_grid=n_grid)
+        assert np.all(es.dtheta > 0) and np.all(np.isfinite(es.u))
+        assert es.tf == pytest.approx(exact, rel=1e-12)
+        assert float(np.max(np.abs(es.u))) <= 1.0 + 1e-9
+    for n_grid in (999, 1000, 4000):
+        sol = eigenaxis_answer(prob, n_grid=n_grid)
+        assert sol.success and sol.verification["torque_bound"]["value"] <= 1.0 + 1e-9, sol.message
+    # random symmetric slews at rate caps: every piece's acceleration within the bound
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        th, J, U = rng.uniform(0.2, 3.0), rng.uniform(1.0, 30.0), rng.uniform(0.2, 2.0)
+        w = math.sqrt(th * U / J) * rng.uniform(0.3, 1.0)      # reached before the middle, or at it
+        prob = SlewProblem([J] * 3, torque_max=U, qf=[math.cos(th / 2), math.sin(th / 2), 0, 0], rate_max=w)
+        es = eigenaxis_slew(prob, n_grid=int(rng.integers(5, 4001)))
+        assert np.all(es.dtheta > 0) and float(np.max(np.abs(es.u))) / U <= 1.0 + 1e-9
+        assert es.tf == pytest.approx(th / w + w / (U / J) if w * w < th * U / J else 2 * math.sqrt(th * J / U),
+                                      rel=1e-9)

@@ -98,12 +98,14 @@ def capped_nodes(fwd, bwd, fa, bd, th, n_grid, s_cap):
     """The profile ``min(fwd, bwd)`` as nodes ``(θ, s, dθ)`` (``dθ[k]``: the angle from node
     ``k`` to ``k+1``, the grid step itself where a step is not split, so that a profile without
     added points is the grid's to the last bit): the grid, plus the points inside a grid interval
-    where a sweep reaches the rate cap ``s_cap`` (``inf``: none). On the grid alone an interval
-    where the speed reaches the cap takes one constant acceleration from its start to the cap at
-    its end, slower than accelerating fully and then coasting: under a tight rate limit, whose
-    acceleration covers less than a grid step, that cost up to 0.2 % of the slew's time. With
-    these points every piece has the constant acceleration it really has (exact for a body
-    without gyroscopic term)."""
+    where the profile reaches the rate cap ``s_cap`` (``inf``: none) on a sweep's line. On the
+    grid alone an interval where the speed reaches the cap takes one constant acceleration from
+    its start to the cap at its end, slower than accelerating fully and then coasting: under a
+    tight rate limit, whose acceleration covers less than a grid step, that cost up to 0.2 % of
+    the slew's time. With these points every piece has the constant acceleration it really has
+    (exact for a body without gyroscopic term). The pieces' angles are computed from the sweep's
+    acceleration (``d = (s_cap - s) / 2|θ̈|``), not as differences of nearby angles, so that the
+    acceleration a piece implies is the sweep's to rounding however short the piece."""
     dth = th / n_grid
     theta = np.empty(3 * n_grid + 1)
     s = np.empty(3 * n_grid + 1)
@@ -114,25 +116,51 @@ def capped_nodes(fwd, bwd, fa, bd, th, n_grid, s_cap):
     for k in range(n_grid):
         t0 = k * dth
         t1 = th if k == n_grid - 1 else (k + 1) * dth
-        last = t0
+        d1 = math.inf       # from t0 to where the forward line reaches the cap
+        d2 = math.inf       # from where the backward line leaves the cap to t1
         if s_cap < math.inf:
-            x1 = math.inf
-            x2 = math.inf
             if fa[k] > 0.0 and fwd[k] < s_cap < fwd[k] + 2.0 * dth * fa[k]:
-                x1 = t0 + (s_cap - fwd[k]) / (2.0 * fa[k])
+                d1 = (s_cap - fwd[k]) / (2.0 * fa[k])
+                if bwd[k + 1] - 2.0 * bd[k] * (dth - d1) < s_cap * (1.0 - 1e-12):
+                    d1 = math.inf           # the profile is the backward line there, below the cap
             if bd[k] < 0.0 and bwd[k + 1] < s_cap < bwd[k + 1] - 2.0 * dth * bd[k]:
-                x2 = t1 - (s_cap - bwd[k + 1]) / (-2.0 * bd[k])
-            for x in (min(x1, x2), max(x1, x2)):
-                if t0 < x < t1:
-                    theta[m] = x
-                    # the lines of both sweeps on this interval, unclamped, and the cap
-                    s[m] = max(min(fwd[k] + 2.0 * fa[k] * (x - t0), bwd[k + 1] - 2.0 * bd[k] * (t1 - x), s_cap), 0.0)
-                    steps[m - 1] = x - last
-                    last = x
-                    m += 1
+                d2 = (s_cap - bwd[k + 1]) / (-2.0 * bd[k])
+                if fwd[k] + 2.0 * fa[k] * (dth - d2) < s_cap * (1.0 - 1e-12):
+                    d2 = math.inf           # the profile is the forward line there, below the cap
+        mid = dth - (d1 if d1 < math.inf else 0.0) - (d2 if d2 < math.inf else 0.0)
+        if d1 < math.inf and d2 < math.inf and not mid > 1e-12 * dth:
+            # both lines reach the cap at one angle: one point, the pieces to either side
+            theta[m] = t0 + d1
+            s[m] = s_cap
+            steps[m - 1] = d1
+            m += 1
+            theta[m] = t1
+            s[m] = min(fwd[k + 1], bwd[k + 1])
+            steps[m - 1] = d2
+            m += 1
+            continue
+        if not mid > 1e-12 * dth:       # (rounding at a piece's end: the grid step)
+            d1 = math.inf
+            d2 = math.inf
+            mid = dth
+        if d1 < math.inf:
+            theta[m] = t0 + d1
+            s[m] = s_cap
+            steps[m - 1] = d1
+            m += 1
+        if d2 < math.inf:
+            theta[m] = t1 - d2
+            s[m] = s_cap
+            steps[m - 1] = mid if d1 < math.inf else dth - d2
+            m += 1
         theta[m] = t1
         s[m] = min(fwd[k + 1], bwd[k + 1])
-        steps[m - 1] = dth if last == t0 else t1 - last
+        if d2 < math.inf:
+            steps[m - 1] = d2
+        elif d1 < math.inf:
+            steps[m - 1] = mid
+        else:
+            steps[m - 1] = dth
         m += 1
     return theta[:m].copy(), s[:m].copy(), steps[:m - 1].copy()
 

@@ -206,7 +206,7 @@ def _body_costates(q0, B, z, u, tau):
     for i in range(4):
         c0[i] = lq[i] * tau
     for i in range(3):
-        c0[4 + i] = lw[i] * tau * tau
+        c0[4 + i] = lw[i] * (tau * tau)     # as the staged path rounds it: λω' · τ²
     return c0, uf
 
 
@@ -424,6 +424,8 @@ def cone_row_solution(q0, axial, order, tau, T_ref, n_cones, slots, Z, T_tab, T_
     ok = math.isfinite(tf) and tf > 0.0
     for i in range(7):
         ok = ok and math.isfinite(c0[i])
+    for i in range(3):
+        ok = ok and math.isfinite(U[j, i])      # (a NaN sign would come out as 0, not as an error)
     for i in range(m):
         ok = ok and 0.0 < touches[i, 1] < tf and math.isfinite(touches[i, 2]) and touches[i, 2] >= 0.0
     return c0, tf, sw, counts, uf, touches, ok

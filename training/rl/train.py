@@ -515,8 +515,8 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
             venv.training = not cfg.get("normalize_frozen", False)
         # hyperparameters changed with --set on this resume run as config.yaml records them (SB3's
         # load keeps the saved ones unless given; the others are the saved run's own)
-        asked = {item.partition("=")[0].split(".", 1)[1] for item in overrides or []
-                 if item.partition("=")[0].startswith("hyperparameters.")}
+        asked = {item.partition("=")[0].split(".")[1] for item in overrides or []
+                 if item.partition("=")[0].startswith("hyperparameters.")}      # (a nested key: its top)
         model = cls.load(str(model_path), env=venv, tensorboard_log=tb, device="cpu",
                          **{k: v for k, v in hp.items() if k in asked})
         if replay_path is not None and hasattr(model, "load_replay_buffer"):
