@@ -434,6 +434,20 @@ def test_when_every_route_fails_the_record_nearest_its_checks_is_returned():
     assert 700.0 < sol.tf < 901.3
 
 
+def test_how_far_a_failure_is_from_its_checks():
+    from types import SimpleNamespace
+    from solvers.auto_route import _worst_excess
+
+    def rec(**checks):
+        return SimpleNamespace(verification={k: {"value": v, "tol": t, "passed": v <= t} for k, (v, t) in checks.items()})
+    assert _worst_excess(rec(boundary_attitude_error=(1.4e-4, 1e-4), rate_limit=(0.99, 1.0))) == pytest.approx(1.4)
+    assert _worst_excess(rec(rate_limit=(71.0, 1.0))) == pytest.approx(71.0)
+    # every check passed (a failure for another reason: slower than the eigenaxis slew): nearest
+    assert _worst_excess(rec(boundary_attitude_error=(1e-12, 1e-8))) == 0.0
+    assert _worst_excess(SimpleNamespace(verification={})) == math.inf      # nothing to measure
+    assert _worst_excess(rec(normality=(0.3, 0.0))) == math.inf             # no positive tolerance
+
+
 def test_the_replayed_path_keeps_an_active_rate_limit():
     # J = [1, 2, 3], rate limit 0.2 rad/s, 120°: the NLP keeps the limit at its points, the
     # replayed path exceeded it by 4.9e-5 relative between them (edge-case audit); the
