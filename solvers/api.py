@@ -57,8 +57,9 @@ from .deadline import propagation_deadline
 from .blas_threads import single_threaded_blas
 from .kernel_loading import ensure_kernels
 from .guesses import Guess
+from .eigenaxis import baseline_time
 from .eigenaxis_answer import N_GRID, eigenaxis_answer, eigenaxis_inapplicable, no_slower_than_eigenaxis
-from .solution import SlewSolution
+from .solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
 from .switch_time_opt import switch_time_applies
 from . import auto_route, cone_routes, multistart, stage_budget, warm_routes
 
@@ -251,6 +252,13 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     with propagation_deadline(time.perf_counter() + route_budget):
         sol = _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, reserved,
                         check_local, use_table, cone_challenge)
+    if not (isinstance(sol.baseline_tf, float) and math.isfinite(sol.baseline_tf)) and prob.is_rest_to_rest \
+            and sol.status != STATUS_BUDGET_EXHAUSTED:      # (a spent budget gets nothing more)
+        # the routes that did not need the eigenaxis baseline (collocation's pointing and cone
+        # answers, the touch-point and switch-time routes) left it empty; every rest-to-rest
+        # answer carries it (cones ignored, a pointing target's reference attitude), for the user's
+        # comparison (under a millisecond)
+        sol.baseline_tf = baseline_time(prob)
     sol.kernel_load_time = load
     return sol
 

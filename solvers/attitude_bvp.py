@@ -43,10 +43,11 @@ from typing import Optional
 import numpy as np
 
 from slew_env.core.cones import perpendicular_basis
-from slew_env.core.quaternion import qconj, qfrom_two_vectors, qmul, qrotate
+from slew_env.core.quaternion import qconj, qmul, qrotate
 from .core import attitude_flow as af
 from .core.pointing import pointing_terminal
 from .deadline import current as _current_deadline
+from .eigenaxis import reference_attitude
 
 NY = af.NY
 
@@ -172,9 +173,7 @@ class AttitudeBVP:
         if self.pointing:
             self.s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
             self.d_i = np.asarray(problem.sensor_target, float) / np.linalg.norm(problem.sensor_target)
-            r = qfrom_two_vectors(qrotate(self.q0, self.s_b), self.d_i)
-            self.qf = qmul(r, self.q0)
-            self.qf /= np.linalg.norm(self.qf)
+            self.qf = reference_attitude(problem)
             # e1, e2: an orthonormal basis of the plane orthogonal to the sensor
             self._e = np.array(perpendicular_basis(self.s_b))
             self._ref_problem = None    # made when first asked for (a validated copy: 0.3 ms)

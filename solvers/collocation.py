@@ -1022,8 +1022,9 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                             **common)
     baseline = math.nan
     if prob.is_rest_to_rest and prob.qf is not None and finals:
-        from .eigenaxis import eigenaxis_slew
-        baseline = eigenaxis_slew(prob, n_grid=1000, ignore_cones=True).tf    # (documented: it ignores cones)
+        from .eigenaxis import baseline_time, eigenaxis_slew
+        # with cones, the eigenaxis slew only where its path clears them (``baseline_time``)
+        baseline = baseline_time(prob) if prob.cones else eigenaxis_slew(prob, n_grid=1000).tf
     common["baseline_tf"] = baseline
     coarse_only = False
     if not finals:

@@ -21,6 +21,7 @@ from typing import Optional
 import numpy as np
 
 from slew_env import SlewProblem
+from slew_env.core.quaternion import qfrom_two_vectors, qmul, qrotate
 from .core import eigenaxis_topp as topp
 from .guesses import eigenaxis_axis_angle
 
@@ -110,6 +111,44 @@ def _checked(problem) -> SlewProblem:
     if not problem.is_rest_to_rest:
         raise ValueError("omega0, omegaf: the eigenaxis slew is defined rest to rest")
     return problem
+
+
+def reference_attitude(problem: SlewProblem) -> np.ndarray:
+    """The target attitude of ``problem``: ``qf``; for a pointing-only target, the start attitude
+    turned by the smallest rotation that takes the sensor onto the target (the roll a pointing
+    answer is compared at: the eigenaxis baseline's target)."""
+    if problem.qf is not None:
+        return np.array(problem.qf, float)
+    s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
+    d_i = np.asarray(problem.sensor_target, float) / np.linalg.norm(problem.sensor_target)
+    qf = qmul(qfrom_two_vectors(qrotate(problem.q0, s_b), d_i), problem.q0)
+    return qf / np.linalg.norm(qf)
+
+
+def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
+    """The eigenaxis baseline of a rest-to-rest ``problem`` (``SlewSolution.baseline_tf``): the
+    eigenaxis slew's time to its reference attitude; NaN for a problem not at rest, and where the
+    eigenaxis path's sensor passes within ``BASELINE_CLEARANCE`` of a keep-out cone (a path that
+    crosses a cone is no baseline to compare an answer with)."""
+    if not problem.is_rest_to_rest:
+        return math.nan
+    ref = problem.replace(qf=reference_attitude(problem), sensor_target=None, cones=())
+    if problem.cones:
+        from .attitude_bvp import quat_left_matrix
+        from .clearance import margins
+        n, th = eigenaxis_axis_angle(ref)
+        a = np.linspace(0.0, th, 721)[:, None]
+        # q0 ⊗ [cos(θ/2), sin(θ/2) n] along the path (the start's attitude turned about n)
+        turn = np.hstack([np.cos(0.5 * a), np.sin(0.5 * a) * n[None, :]])
+        q = turn @ quat_left_matrix(np.asarray(problem.q0, float)).T
+        if float(np.min(margins(problem, q))) < BASELINE_CLEARANCE:
+            return math.nan
+    return eigenaxis_time(ref, n_grid=n_grid)
+
+
+# the sensor moves at most π / 720 rad between the 721 samples of the eigenaxis path: a sampled
+# margin above this keeps the whole path clear
+BASELINE_CLEARANCE = 0.005
 
 
 def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
