@@ -84,3 +84,23 @@ def test_resume_into_a_new_directory_starts_its_own_evaluations(first_run, tmp_p
     assert list(_evaluations(out)["timesteps"]) == [192]
     assert (out / "best" / "best_model.zip").exists()
     assert list(_evaluations(first_run)["timesteps"]) == [64, 128]     # the run it continues is untouched
+
+
+def test_resume_from_an_older_checkpoint_keeps_the_later_evaluations_beside(tmp_path):
+    # a review: resuming into the run from a checkpoint before its last evaluation appended the new
+    # evaluations after the later ones (timesteps out of order)
+    cfg = tiny_config(tmp_path, eval={"eval_freq": 64, "n_eval_episodes": 2}, checkpoint={"save_freq": 64})
+    run = tmp_path / "run"
+    train("ppo", "full-attitude", config=cfg, seed=2, out=run)
+    old = _evaluations(run)
+    assert list(old["timesteps"]) == [64, 128]
+    early = run / "checkpoints" / "rl_model_64_steps.zip"
+    assert early.exists(), sorted(p.name for p in (run / "checkpoints").iterdir())
+    with pytest.warns(UserWarning, match="resumed from 64 steps, before 1 of the run's evaluations"):
+        train("ppo", "full-attitude", resume=early, timesteps=64, out=run)
+    new = _evaluations(run)
+    assert list(new["timesteps"]) == [64, 128]                     # the checkpoint's 64, then its own 128
+    np.testing.assert_array_equal(new["results"][0], old["results"][0])
+    kept = np.load(run / "eval" / "evaluations_beyond_64_steps.npz")
+    assert list(kept["timesteps"]) == [128]
+    np.testing.assert_array_equal(kept["results"], old["results"][1:])

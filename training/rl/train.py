@@ -272,7 +272,7 @@ def _eval_callback_class():
     return SeededEvalCallback
 
 
-def earlier_evaluations(out: Path, n_eval_episodes: int) -> Optional[dict]:
+def earlier_evaluations(out: Path, n_eval_episodes: int, steps_before: Optional[int] = None) -> Optional[dict]:
     """What a run resumed into ``out`` goes on from: the lists of ``out/eval/evaluations.npz``
     (``timesteps``, ``results``, ``ep_lengths``, ``successes``: all that ``EvalCallback`` saves)
     and ``best_mean_reward``, the best earlier mean reward if ``best/best_model.zip`` is there
@@ -281,6 +281,11 @@ def earlier_evaluations(out: Path, n_eval_episodes: int) -> Optional[dict]:
     Evaluations of another ``n_eval_episodes`` cannot share the file's arrays: that file is
     kept as ``evaluations_until_<N>_steps.npz`` (N its last evaluation) and the new file starts
     afresh; the best mean reward still guards ``best/``.
+
+    A run resumed from a checkpoint older than the last evaluation (``steps_before``, the
+    checkpoint's timesteps) goes on from that checkpoint: the evaluations past it belong to the
+    training it leaves, and are kept in ``evaluations_beyond_<steps_before>_steps.npz``, not mixed
+    into the file's history out of order; ``best/`` still holds the best model of either.
     """
     import numpy as np
 
@@ -294,6 +299,17 @@ def earlier_evaluations(out: Path, n_eval_episodes: int) -> Optional[dict]:
             "successes": old.get("successes") or [], "best_mean_reward": -np.inf}
     if results and (out / "best" / "best_model.zip").exists():
         hist["best_mean_reward"] = max(float(np.mean(r)) for r in results)
+    later = [i for i, t in enumerate(hist["timesteps"]) if steps_before is not None and t > steps_before]
+    if later:
+        keep = path.with_name(f"evaluations_beyond_{steps_before}_steps.npz")
+        np.savez(keep, **{k: np.asarray([hist[k][i] for i in later]) for k in ("timesteps", "results", "ep_lengths",
+                                                                               "successes")
+                          if len(hist[k]) == len(hist["timesteps"])})
+        warnings.warn(f"eval: resumed from {steps_before} steps, before {len(later)} of the run's evaluations; "
+                      f"those are kept in {keep}, and {path} goes on from the checkpoint")
+        for k in ("timesteps", "results", "ep_lengths", "successes"):
+            if len(hist[k]) == len(hist["timesteps"]):
+                hist[k] = [v for i, v in enumerate(hist[k]) if i not in later]
     widths = {len(r) for key in ("results", "ep_lengths", "successes") for r in hist[key]}
     if widths - {int(n_eval_episodes)}:
         keep = path.with_name(f"evaluations_until_{hist['timesteps'][-1] if hist['timesteps'] else 0}_steps.npz")
@@ -554,7 +570,7 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     if resume_files and eval_env is not None:
         # resumed into a directory with evaluations (its own, in place): append to them, and
         # replace best/ only with a better evaluation
-        history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)))
+        history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)), steps_before)
     callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET,
                            history)
     if bc_info and bc_info.get("actor_warmup"):
