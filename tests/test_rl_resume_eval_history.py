@@ -100,7 +100,8 @@ def test_resume_from_an_older_checkpoint_keeps_the_later_evaluations_beside(tmp_
         train("ppo", "full-attitude", resume=early, timesteps=64, out=run)
     new = _evaluations(run)
     assert list(new["timesteps"]) == [64, 128]                     # the checkpoint's 64, then its own 128
+    assert set(new) == set(KEYS) and all(len(new[k]) == 2 for k in KEYS)
     np.testing.assert_array_equal(new["results"][0], old["results"][0])
     kept = np.load(run / "eval" / "evaluations_beyond_64_steps.npz")
-    assert list(kept["timesteps"]) == [128]
+    assert set(kept.files) == set(KEYS) and list(kept["timesteps"]) == [128]
     np.testing.assert_array_equal(kept["results"], old["results"][1:])

@@ -272,6 +272,9 @@ def _eval_callback_class():
     return SeededEvalCallback
 
 
+EVAL_KEYS = ("timesteps", "results", "ep_lengths", "successes")     # what EvalCallback saves
+
+
 def earlier_evaluations(out: Path, n_eval_episodes: int, steps_before: Optional[int] = None) -> Optional[dict]:
     """What a run resumed into ``out`` goes on from: the lists of ``out/eval/evaluations.npz``
     (``timesteps``, ``results``, ``ep_lengths``, ``successes``: all that ``EvalCallback`` saves)
@@ -294,29 +297,27 @@ def earlier_evaluations(out: Path, n_eval_episodes: int, steps_before: Optional[
         return None
     with np.load(path) as f:
         old = {k: f[k].tolist() for k in f.files}
-    results = old.get("results") or []
-    hist = {"timesteps": old.get("timesteps") or [], "results": results, "ep_lengths": old.get("ep_lengths") or [],
-            "successes": old.get("successes") or [], "best_mean_reward": -np.inf}
-    if results and (out / "best" / "best_model.zip").exists():
-        hist["best_mean_reward"] = max(float(np.mean(r)) for r in results)
+    hist = {k: old.get(k) or [] for k in EVAL_KEYS}
+    hist["best_mean_reward"] = -np.inf
+    if hist["results"] and (out / "best" / "best_model.zip").exists():
+        hist["best_mean_reward"] = max(float(np.mean(r)) for r in hist["results"])
     later = [i for i, t in enumerate(hist["timesteps"]) if steps_before is not None and t > steps_before]
     if later:
         keep = path.with_name(f"evaluations_beyond_{steps_before}_steps.npz")
-        np.savez(keep, **{k: np.asarray([hist[k][i] for i in later]) for k in ("timesteps", "results", "ep_lengths",
-                                                                               "successes")
-                          if len(hist[k]) == len(hist["timesteps"])})
+        # (the arrays of each evaluation: those EvalCallback saved, one entry per evaluation)
+        per_eval = [k for k in EVAL_KEYS if len(hist[k]) == len(hist["timesteps"])]
+        np.savez(keep, **{k: np.asarray([hist[k][i] for i in later]) for k in per_eval})
         warnings.warn(f"eval: resumed from {steps_before} steps, before {len(later)} of the run's evaluations; "
                       f"those are kept in {keep}, and {path} goes on from the checkpoint")
-        for k in ("timesteps", "results", "ep_lengths", "successes"):
-            if len(hist[k]) == len(hist["timesteps"]):
-                hist[k] = [v for i, v in enumerate(hist[k]) if i not in later]
+        for k in per_eval:
+            hist[k] = [v for i, v in enumerate(hist[k]) if i not in later]
     widths = {len(r) for key in ("results", "ep_lengths", "successes") for r in hist[key]}
     if widths - {int(n_eval_episodes)}:
         keep = path.with_name(f"evaluations_until_{hist['timesteps'][-1] if hist['timesteps'] else 0}_steps.npz")
         path.replace(keep)
         warnings.warn(f"eval: the earlier evaluations have {sorted(widths)} episodes, not n_eval_episodes="
                       f"{n_eval_episodes}; they are kept in {keep} and {path} starts afresh")
-        hist.update(timesteps=[], results=[], ep_lengths=[], successes=[])
+        hist.update({k: [] for k in EVAL_KEYS})
     return hist
 
 
