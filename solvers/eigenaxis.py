@@ -134,16 +134,20 @@ def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
         return math.nan
     ref = problem.replace(qf=reference_attitude(problem), sensor_target=None, cones=())
     if problem.cones:
-        from .attitude_bvp import quat_left_matrix
         from .clearance import margins
         n, th = eigenaxis_axis_angle(ref)
-        a = np.linspace(0.0, th, 721)[:, None]
-        # q0 ⊗ [cos(θ/2), sin(θ/2) n] along the path (the start's attitude turned about n)
-        turn = np.hstack([np.cos(0.5 * a), np.sin(0.5 * a) * n[None, :]])
-        q = turn @ quat_left_matrix(np.asarray(problem.q0, float)).T
+        q = eigenaxis_path(np.asarray(problem.q0, float), n, np.linspace(0.0, th, 721))
         if float(np.min(margins(problem, q))) < BASELINE_CLEARANCE:
             return math.nan
     return eigenaxis_time(ref, n_grid=n_grid)
+
+
+def eigenaxis_path(q0, n, theta) -> np.ndarray:
+    """The attitudes ``q0 ⊗ [cos(θ/2), sin(θ/2) n]`` of the rotation about the body axis ``n``,
+    one row for each angle of ``theta`` (left multiplication is linear: one matrix product)."""
+    from .attitude_bvp import quat_left_matrix     # (attitude_bvp imports this module)
+    th = np.asarray(theta, float)
+    return np.column_stack([np.cos(0.5 * th), np.sin(0.5 * th)[:, None] * n[None, :]]) @ quat_left_matrix(q0).T
 
 
 # the sensor moves at most π / 720 rad between the 721 samples of the eigenaxis path: a sampled

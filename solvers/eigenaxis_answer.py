@@ -25,8 +25,8 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qerror_angle
-from .attitude_bvp import AttitudeBVP, quat_left_matrix
-from .eigenaxis import _checked, _phase_plane, eigenaxis_slew, eigenaxis_time
+from .attitude_bvp import AttitudeBVP
+from .eigenaxis import _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
 from .verify import failure_text, make_check
 
@@ -126,8 +126,7 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     tau = np.where(first, td - t[np.clip(k, 0, None)], tau)
     thd = theta_k[k] + rate[k] * tau + 0.5 * acc[k] * tau ** 2
     rd = rate[k] + acc[k] * tau
-    # q0 ⊗ [cos(θ/2), sin(θ/2) n] for every sample at once (left multiplication is linear)
-    qd = np.column_stack([np.cos(0.5 * thd), np.sin(0.5 * thd)[:, None] * n[None, :]]) @ quat_left_matrix(q0).T
+    qd = eigenaxis_path(q0, n, thd)
     ud = acc[k][:, None] * a + (rd * rd)[:, None] * c
     # verification: replay, torque at both ends of every step, rate limit
     from .core.control_replay import replay_eigenaxis_profile

@@ -89,8 +89,9 @@ def test_baseline_time_without_gyroscopic_term_is_the_closed_form(J, axis, rate_
     prob = _prob(J, axis, 2.2, torque_max=[1.0, 0.7, 0.4], rate_max=rate_max)
     n, th, a, c, s_max = _phase_plane(prob)
     assert not np.any(c)
-    fwd, bwd, _, _ = topp.sweep(a, c, np.asarray(prob.torque_max, float), math.inf, float(s_max), float(th), 200000)
-    fine = topp.profile_time(fwd, bwd, float(th), 200000)
+    fwd, bwd, fa, bd = topp.sweep(a, c, np.asarray(prob.torque_max, float), math.inf, float(s_max), float(th), 200000)
+    _, s, steps = topp.capped_nodes(fwd, bwd, fa, bd, float(th), 200000, math.inf)    # the grid alone
+    fine = topp.nodes_time(steps, s)
     T = eigenaxis_time(prob, n_grid=1000)
     assert T == pytest.approx(fine, rel=1e-8) and T <= fine * (1 + 1e-14)
     # the planner's profile splits the grid step where the rate cap starts: the closed form too

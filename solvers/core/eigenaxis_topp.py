@@ -143,6 +143,8 @@ def capped_nodes(fwd, bwd, fa, bd, th, n_grid, s_cap):
             d1 = math.inf
             d2 = math.inf
             mid = dth
+        # the pieces: [t0, t0 + d1] where the cap is reached, the coast (``mid``: the grid step
+        # less what the sweeps' lines take), [t1 - d2, t1] where it is left
         if d1 < math.inf:
             theta[m] = t0 + d1
             s[m] = s_cap
@@ -151,16 +153,11 @@ def capped_nodes(fwd, bwd, fa, bd, th, n_grid, s_cap):
         if d2 < math.inf:
             theta[m] = t1 - d2
             s[m] = s_cap
-            steps[m - 1] = mid if d1 < math.inf else dth - d2
+            steps[m - 1] = mid
             m += 1
         theta[m] = t1
         s[m] = min(fwd[k + 1], bwd[k + 1])
-        if d2 < math.inf:
-            steps[m - 1] = d2
-        elif d1 < math.inf:
-            steps[m - 1] = mid
-        else:
-            steps[m - 1] = dth
+        steps[m - 1] = d2 if d2 < math.inf else mid
         m += 1
     return theta[:m].copy(), s[:m].copy(), steps[:m - 1].copy()
 
@@ -186,22 +183,6 @@ def max_speed(a, c, U):
         else:
             hi = mid
     return lo
-
-
-@njit(cache=True)
-def profile_time(fwd, bwd, th, n_grid):
-    """Duration of the phase-plane profile ``min(fwd, bwd)`` on the grid (piecewise-constant
-    acceleration)."""
-    dth = th / n_grid
-    total = 0.0
-    prev = math.sqrt(max(min(fwd[0], bwd[0]), 0.0))
-    for k in range(1, n_grid + 1):
-        r = math.sqrt(max(min(fwd[k], bwd[k]), 0.0))
-        den = prev + r
-        if den > 0.0:
-            total += 2.0 * dth / den
-        prev = r
-    return total
 
 
 @njit(cache=True)
