@@ -578,7 +578,7 @@ def check_scalar_options(**opts) -> None:
 
 def _check_intervals(N, in_list=False) -> int:
     """``N`` as an int, or ``ValueError`` naming ``n_intervals``."""
-    if isinstance(N, bool) or not isinstance(N, (int, np.integer)):
+    if not is_integer(N):
         raise ValueError(f"n_intervals: expected {'integers ≥ 2 in the list' if in_list else 'an integer ≥ 2'}, "
                          f"got {N!r}")
     if N < 2:
@@ -808,6 +808,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
 
 
 LOCAL_SPLIT = 8     # parts an interval is split into where the control or the rates change fast
+LOCAL_ROUNDS = 3    # rounds of that refinement (each from the answer before)
+LOCAL_MAX_INTERVALS = 600   # and the most intervals it builds (its NLP cannot be interrupted)
 
 
 def _short_rate_arcs(prob, h) -> bool:
@@ -819,8 +821,6 @@ def _short_rate_arcs(prob, h) -> bool:
         return False
     t_reach = np.asarray(prob.rate_max, float) * np.asarray(prob.inertia, float) / np.asarray(prob.torque_max, float)
     return bool(np.max(t_reach) < 0.25 * h)
-LOCAL_ROUNDS = 3    # rounds of that refinement after the uniform ones
-LOCAL_MAX_INTERVALS = 600   # and the most intervals it builds (its NLP cannot be interrupted)
 
 
 def _local_edges(sol, edges):

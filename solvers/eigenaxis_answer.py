@@ -25,6 +25,7 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.quaternion import qerror_angle
+from slew_env.checks import is_integer
 from .attitude_bvp import AttitudeBVP
 from .eigenaxis import _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
@@ -87,7 +88,7 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
         raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
     if n_grid is None:
         n_grid = N_GRID if math.isinf(prob.torque_norm) or not np.any(c) else N_GRID_PNORM_GYRO
-    if isinstance(n_grid, bool) or not isinstance(n_grid, (int, np.integer)) or n_grid < 2:
+    if not is_integer(n_grid) or n_grid < 2:
         raise ValueError(f"n_grid: must be an integer ≥ 2, got {n_grid!r}")
     es = eigenaxis_slew(prob, n_grid)
     t, rate = es.t, es.rate
