@@ -68,3 +68,29 @@ def test_a_hyperparameter_set_on_resume_is_the_one_that_runs(tmp_path):
     assert model.policy.optimizer.param_groups[0]["lr"] == 2.5e-5
     assert saved["hyperparameters"]["ent_coef"] == 0.01 == model.ent_coef
     assert model.n_steps == 64 and model.num_timesteps == 128        # the rest as saved
+
+
+def test_a_gamma_set_on_resume_reaches_the_reward_normalisation(tmp_path):
+    # VecNormalize.load kept the saved discount: the agent ran with the new gamma while its
+    # rewards were scaled with returns discounted by the old one
+    import pickle
+
+    from stable_baselines3 import PPO
+    from rl_tiny import tiny_config
+
+    def saved_normalisation():
+        with open(out / "vecnormalize.pkl", "rb") as f:
+            return pickle.load(f)          # (VecNormalize.load needs an env to wrap)
+
+    out = tmp_path / "run"
+    train("ppo", "full-attitude", config=tiny_config(tmp_path, normalize={"norm_obs": True, "norm_reward": True}),
+          timesteps=64, out=out)
+    first = saved_normalisation()
+    assert first.gamma == 0.99 and first.clip_reward == 10.0        # SB3's defaults, as configured
+    train("ppo", "full-attitude", resume=str(out), timesteps=64,
+          overrides=["hyperparameters.gamma=0.9", "normalize.clip_reward=3.0"])
+    vn = saved_normalisation()
+    assert PPO.load(str(out / "model.zip"), device="cpu").gamma == 0.9
+    assert vn.gamma == 0.9 and vn.clip_reward == 3.0
+    assert vn.norm_reward and vn.norm_obs
+    assert vn.obs_rms.count > first.obs_rms.count                    # the statistics went on from the file

@@ -231,6 +231,23 @@ def normalize_kwargs(cfg: dict) -> Optional[dict]:
     return dict(norm)
 
 
+# VecNormalize settings a resume takes from the run's config (its statistics come from the file);
+# norm_obs / norm_reward stay as saved: switching them mid-run would feed the policy another scale
+RESUMED_NORMALIZE_SETTINGS = ("gamma", "clip_obs", "clip_reward", "epsilon")
+
+
+def resume_normalize_settings(vn, cfg: dict, gamma: float) -> None:
+    """Give a loaded ``VecNormalize`` the settings the resumed run's config records: the reward
+    discount is the model's ``gamma`` (or ``normalize.gamma``), as ``wrap_normalize`` gives a new
+    run. ``VecNormalize.load`` keeps the saved ones, so a ``--set hyperparameters.gamma`` on resume
+    changed the agent's discount but not the one its rewards were scaled with."""
+    kw = dict(normalize_kwargs(cfg) or {})
+    kw.setdefault("gamma", gamma)
+    for key in RESUMED_NORMALIZE_SETTINGS:
+        if key in kw:
+            setattr(vn, key, float(kw[key]))
+
+
 def wrap_normalize(venv, cfg: dict, gamma: float, training=True):
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -530,6 +547,7 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
                 raise FileNotFoundError(f"--resume: no VecNormalize statistics next to {model_path}")
             venv = VecNormalize.load(str(vn_path), venv.venv)
             venv.training = not cfg.get("normalize_frozen", False)
+            resume_normalize_settings(venv, cfg, gamma)
         # hyperparameters changed with --set on this resume run as config.yaml records them (SB3's
         # load keeps the saved ones unless given; the others are the saved run's own)
         asked = {item.partition("=")[0].split(".")[1] for item in overrides or []
