@@ -91,8 +91,9 @@ FALLBACK_GRID_FLOOR = {"no-gyro": 1000, "pnorm-gyro": 250}
 def solve(problem, method="auto", guess=None, warm_start="default", **options) -> SlewSolution:
     """Time-optimal slew of ``problem`` (``SlewProblem`` or dict).
 
-    ``method``: ``"auto"`` (default), ``"indirect"``, ``"multiple-shooting"`` or
-    ``"collocation"`` (see the module docstring). ``guess``: a ``solvers.Guess``.
+    ``method``: ``"auto"`` (default), ``"indirect"``, ``"multiple-shooting"``,
+    ``"collocation"`` (see the module docstring) or ``"eigenaxis"`` (the baseline planner's slew:
+    ``eigenaxis_answer``). ``guess``: a ``solvers.Guess``.
 
     ``warm_start``: where the first guess comes from when ``guess`` is not given
     (indirect routes and ``"auto"``): ``"default"`` (the shipped full-attitude model, for the
@@ -141,8 +142,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     which then runs too); False: the collocation route instead.
     ``fallback`` (default None): ``"eigenaxis"`` returns, where the route ends without a verified
     answer (the ``time_budget`` ran out, or nothing converged), the eigenaxis slew of a
-    rest-to-rest full-attitude problem without cones (``method="eigenaxis"``, verified by its
-    replay, not time-optimal; 12–24 ms for a per-axis bound): a flyable answer for on-board use
+    rest-to-rest problem (``method="eigenaxis"``, verified by its replay, not time-optimal;
+    12–24 ms for a per-axis bound; a pointing target at its reference attitude, and with
+    keep-out cones only where the slew's path clears them): a flyable answer for on-board use
     under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
     planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
@@ -487,8 +489,10 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if fallback == "eigenaxis" and not sol.success:
         end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf
         sol = _eigenaxis_fallback(prob, sol, t0, reserved, end)
-    elif not sol.success and method != "eigenaxis" and eigenaxis_inapplicable(prob) is None:
-        # a user with a slew to fly and no verified answer should learn that one is offered
+    elif not sol.success and method != "eigenaxis" and eigenaxis_inapplicable(prob) is None \
+            and (not prob.cones or math.isfinite(baseline_time(prob))):
+        # a user with a slew to fly and no verified answer should learn that one is offered (with
+        # cones, where the eigenaxis path keeps clear of them)
         sol.message += (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
                         "baseline_tf), checked by its own replay, not time-optimal.")
     return sol
@@ -499,8 +503,8 @@ def _fallback_grid(prob, left=math.inf):
     default (``N_GRID``), or ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound with a gyroscopic
     term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``, not below
     ``FALLBACK_GRID_FLOOR``)."""
-    from .eigenaxis import _checked, _phase_plane
-    if not math.isinf(prob.torque_norm) and np.any(_phase_plane(_checked(prob))[3]):
+    from .eigenaxis import _checked, _phase_plane, reference_problem
+    if not math.isinf(prob.torque_norm) and np.any(_phase_plane(_checked(reference_problem(prob)))[3]):
         kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
     else:     # (a p-norm profile without a gyroscopic term is bang-coast-bang, exact on any grid)
         kind, grid = "no-gyro", N_GRID
@@ -511,8 +515,9 @@ def _fallback_grid(prob, left=math.inf):
 
 def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSolution:
     """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
-    ran out, or nothing converged), the eigenaxis slew of a rest-to-rest full-attitude problem
-    without cones (``eigenaxis_answer``: what most spacecraft fly today, verified by its replay;
+    ran out, or nothing converged), the eigenaxis slew of a rest-to-rest problem (a pointing
+    target at its reference attitude; with cones where its path clears them) (``eigenaxis_answer``:
+    what most spacecraft fly today, verified by its replay;
     12–24 ms for a per-axis bound, planned in the ``reserved`` seconds that ``solve`` kept out of
     the route's budget). ``sol`` unchanged, its message saying why, where the fallback does not
     apply or fails."""

@@ -125,6 +125,12 @@ def reference_attitude(problem: SlewProblem) -> np.ndarray:
     return qf / np.linalg.norm(qf)
 
 
+def reference_problem(problem: SlewProblem) -> SlewProblem:
+    """The rest-to-rest full-attitude problem whose eigenaxis slew is ``problem``'s: the target
+    ``reference_attitude``, no keep-out cones (the callers check the path against them)."""
+    return problem.replace(qf=reference_attitude(problem), sensor_target=None, cones=())
+
+
 def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
     """The eigenaxis baseline of a rest-to-rest ``problem`` (``SlewSolution.baseline_tf``): the
     eigenaxis slew's time to its reference attitude; NaN for a problem not at rest, and where the
@@ -132,7 +138,7 @@ def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
     crosses a cone is no baseline to compare an answer with)."""
     if not problem.is_rest_to_rest:
         return math.nan
-    ref = problem.replace(qf=reference_attitude(problem), sensor_target=None, cones=())
+    ref = reference_problem(problem)
     if problem.cones:
         from .clearance import margins
         n, th = eigenaxis_axis_angle(ref)

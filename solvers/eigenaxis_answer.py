@@ -13,6 +13,9 @@ acceleration ``θ̈_k`` is constant, so the rate is linear in time,
 throughout. ``control(t)`` is that torque, and ``tf`` the profile's exact duration. The
 verification replays the control (RK4, ``core.control_replay``) and checks the boundary
 (1e-8, as for exact answers), the torque bound at every step's ends and the rate limit.
+A pointing target is flown to its reference attitude (the smallest rotation that takes the
+sensor onto the target); keep-out cones are not avoided but checked: the answer is verified
+where the path clears them (``cone_clearance``, certified between samples) and fails otherwise.
 It is not an extremal of the time-optimal problem: ``exact`` is ``False``, ``costate0`` is NaN
 and ``switch_times`` are empty (the torque is not bang-bang per axis).
 """
@@ -27,7 +30,7 @@ from slew_env import SlewProblem
 from slew_env.core.quaternion import qerror_angle
 from slew_env.checks import is_integer
 from .attitude_bvp import AttitudeBVP
-from .eigenaxis import _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time
+from .eigenaxis import _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time, reference_problem
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
 from .verify import failure_text, make_check
 
@@ -63,28 +66,45 @@ def fine_eigenaxis_time(prob) -> float:
 
 
 def eigenaxis_inapplicable(prob):
-    """Why the eigenaxis slew is not an answer to ``prob`` (it needs a rest-to-rest
-    full-attitude problem without cones), or ``None``: where ``solve``'s eigenaxis fallback does
-    not apply, and where ``auto`` does not compare its answer with it (``no_slower_than_eigenaxis``)."""
+    """Why the eigenaxis slew is not an answer to ``prob`` (it needs a problem at rest at both
+    ends), or ``None``: where ``solve``'s eigenaxis fallback and ``method="eigenaxis"`` do not
+    apply. (With cones it applies where its path clears them: ``eigenaxis_answer`` checks.)"""
+    return None if prob.is_rest_to_rest else "non-zero rates"
+
+
+def _not_compared(prob):
+    """Why ``auto`` does not compare its answer to ``prob`` with the eigenaxis slew
+    (``no_slower_than_eigenaxis``), or ``None``: it does for full-attitude targets without cones."""
     if prob.cones:
         return "keep-out cones"
     if prob.qf is None:
         return "a pointing target"
-    return None if prob.is_rest_to_rest else "non-zero rates"
+    return eigenaxis_inapplicable(prob)
 
 
 def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
-    """The fastest eigenaxis slew of a rest-to-rest full-attitude ``problem`` without cones
-    (module docstring); ``ValueError`` for other problems. ``n_grid``: angle steps of the
-    profile (default ``N_GRID``, or ``N_GRID_PNORM_GYRO`` for a p-norm bound on an asymmetric
-    body off its principal axes)."""
+    """The fastest eigenaxis slew of a rest-to-rest ``problem`` (module docstring);
+    ``ValueError`` for a problem not at rest. ``n_grid``: angle steps of the profile (default
+    ``N_GRID``, or ``N_GRID_PNORM_GYRO`` for a p-norm bound on an asymmetric body off its
+    principal axes).
+
+    A pointing target is reached at its reference attitude (``eigenaxis.reference_attitude``: the
+    smallest rotation that takes the sensor onto the target; the roll is not optimised). With
+    keep-out cones the answer is the same slew, verified only where its path keeps the sensor out
+    of every cone: the ``cone_clearance`` check, certified between the samples as for every other
+    answer (``clearance.certified_min_margin``); otherwise it fails that check and says so."""
     t_start = time.perf_counter()
-    prob = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
-    if prob.cones:
-        raise ValueError("cones: the eigenaxis planner ignores keep-out cones; use method='auto' or 'collocation'")
-    prob = _checked(prob)       # full-attitude target, rest to rest
+    target = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
+    if not target.is_rest_to_rest:
+        raise ValueError("omega0, omegaf: the eigenaxis slew is defined rest to rest")
+    pointing = target.qf is None
+    # the profile is planned on the full-attitude problem without cones; the checks are target's
+    prob = _checked(reference_problem(target) if pointing or target.cones else target)
     n, th, a, c, _ = _phase_plane(prob)
     if th == 0.0:
+        if pointing:
+            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
+                             "nothing to solve")
         raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
     if n_grid is None:
         n_grid = N_GRID if math.isinf(prob.torque_norm) or not np.any(c) else N_GRID_PNORM_GYRO
@@ -135,7 +155,8 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     xf = replay_eigenaxis_profile(x0, np.ascontiguousarray(t, float), np.ascontiguousarray(rate, float),
                                   np.ascontiguousarray(acc, float), np.ascontiguousarray(a, float),
                                   np.ascontiguousarray(c, float), J, 4)
-    att = float(qerror_angle(xf[0:4] / np.linalg.norm(xf[0:4]), prob.qf))
+    qT = xf[0:4] / np.linalg.norm(xf[0:4])
+    att = AttitudeBVP(target.replace(cones=())).pointing_error(qT) if pointing else float(qerror_angle(qT, prob.qf))
     rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
     w_scale = max(1.0, float(np.max(np.abs(rate))))
     ends = np.vstack([acc[:, None] * a + s[:-1, None] * c, acc[:, None] * a + s[1:, None] * c])
@@ -147,6 +168,12 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     if prob.rate_max is not None:
         rl = float(np.max(np.max(rate) * np.abs(n) / np.asarray(prob.rate_max, float)))
         checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
+    if target.cones:
+        from .clearance import CLEARANCE_TOL, certified_min_margin
+        cert = certified_min_margin(target, td, qd, rd[:, None] * n[None, :])[1]
+        checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
+        if cert < CLEARANCE_TOL:
+            checks["cone_clearance"]["note"] = "the eigenaxis path takes the sensor into a keep-out cone"
     text = failure_text(checks)
     # tf is the duration of this profile exactly; tf_tol: its distance to the continuous
     # eigenaxis optimum, from a grid half as fine
@@ -155,6 +182,10 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     msg = (f"The eigenaxis slew: about the body axis n = [{n[0]:.6g}, {n[1]:.6g}, {n[2]:.6g}] by "
            f"{math.degrees(th):.6g}°, the fastest within the bounds (phase-plane profile, {n_grid} steps), "
            "replayed from its control. Not a time-optimal extremal.")
+    if pointing:
+        msg += " The sensor reaches the target at the reference attitude (the smallest rotation; roll not optimised)."
+    if target.cones and "cone_clearance" not in text:
+        msg += f" Its path clears every keep-out cone (certified margin {checks['cone_clearance']['value']:.3g} rad)."
     if text:
         msg = f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}. {msg}"
     first = ud[0]
@@ -163,8 +194,11 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
                         u_first=np.where(first > 0, 1.0, np.where(first < 0, -1.0, 0.0)),
                         t=td, q=qd, omega=rd[:, None] * n[None, :], u=ud, costate=np.full((td.size, 7), np.nan),
                         method="eigenaxis", route=f"eigenaxis slew (phase-plane profile, {n_grid} steps)",
-                        guess="eigenaxis", n_candidates=1, candidates_tf=[round(tf, 9)], baseline_tf=tf,
-                        verification=checks, problem=prob, _control=control)
+                        guess="eigenaxis", n_candidates=1, candidates_tf=[round(tf, 9)],
+                        # (a path into a cone is no baseline: ``eigenaxis.baseline_time``)
+                        baseline_tf=tf if "cone_clearance" not in text else math.nan,
+                        verification=checks, problem=target, _control=control)
+
 
 
 def eigenaxis_unless_faster(prob, tf):
@@ -184,7 +218,7 @@ def no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
     eigenaxis slew: an approximate (collocation) answer that is not faster — small slews,
     where the two agree to first order and collocation cannot resolve the difference — is
     replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
-    if not sol.success or sol.exact or eigenaxis_inapplicable(prob) is not None:
+    if not sol.success or sol.exact or _not_compared(prob) is not None:
         return sol
     # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
     # p-norm with a rate limit): compare with the eigenaxis answer itself, which is cheap for a

@@ -94,11 +94,12 @@ def test_a_pnorm_eigenaxis_answer_of_an_asymmetric_body_is_quick_and_verified():
 
 
 def test_eigenaxis_method_rejects_what_it_does_not_plan():
-    with pytest.raises(ValueError, match="^cones: the eigenaxis planner ignores keep-out cones"):
-        solvers.solve({"inertia": [1, 1, 1], "qf": [0, 0, 0, 1], "cones": [{"axis": [0, 1, 0], "half_angle_deg": 10}]},
-                      method="eigenaxis")
-    with pytest.raises(ValueError, match="^sensor_target: the eigenaxis slew needs a full attitude target"):
-        solvers.solve({"inertia": [1, 1, 1], "sensor_target": [0, 1, 0]}, method="eigenaxis")
+    with pytest.raises(ValueError, match="^omega0, omegaf: the eigenaxis slew is defined rest to rest"):
+        solvers.solve({"inertia": [1, 1, 1], "qf": [0, 0, 0, 1], "omega0": [0.1, 0, 0]}, method="eigenaxis")
+    with pytest.raises(ValueError, match="^omega0, omegaf: the eigenaxis slew is defined rest to rest"):
+        solvers.solve({"inertia": [1, 1, 1], "sensor_target": [0, 1, 0], "omegaf": [0, 0, 0.1]}, method="eigenaxis")
+    with pytest.raises(ValueError, match="^sensor_target: the sensor already points at the target"):
+        solvers.solve({"inertia": [1, 1, 1], "sensor_target": [1, 0, 0]}, method="eigenaxis")
 
 
 def test_compiled_pnorm_sweep_matches_the_reference_interval():

@@ -13,9 +13,10 @@ control_law, verification, problem, and the dense samples t, q, omega, u, costat
 ``--no-dense``, which keeps t and u only where they are the control: README, 'Solution format'). ``-o -`` writes the JSON to stdout (the summary then goes to stderr).
 Exit code: 0 on success, 1 when the solver reports ``success=False`` (the solution is
 still written), 2 on bad input. ``--time-budget S`` holds for the whole solve; with
-``--fallback eigenaxis`` a rest-to-rest full-attitude problem without cones that gets no
-verified time-optimal answer within it gets the eigenaxis slew (``method: "eigenaxis"``,
-success, its route and message saying it is the fallback).
+``--fallback eigenaxis`` a rest-to-rest problem that gets no verified time-optimal answer
+within it gets the eigenaxis slew (``method: "eigenaxis"``, success, its route and message
+saying it is the fallback; a pointing target at its reference attitude, and with keep-out cones
+only where the slew's path clears them).
 
 Batch::
 
@@ -90,7 +91,8 @@ def add_arguments(p):
                         "--method eigenaxis takes none)")
     p.add_argument("--fallback", choices=("eigenaxis",), default=None,
                    help="where no verified time-optimal answer comes within the budget, return the eigenaxis slew "
-                        "(rest-to-rest, full attitude, no cones; verified, not time-optimal)")
+                        "(rest to rest; a pointing target at its reference attitude; with cones only where its "
+                        "path clears them; verified, not time-optimal)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
                         "(the first call in a process also loads compiled code; default 3, 0 to skip)")
