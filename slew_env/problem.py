@@ -7,7 +7,7 @@ name the field and the reason; compiled code downstream trusts it.
 JSON / dict field names (see README, "Problem format")::
 
     inertia, torque_max, torque_norm, q0, omega0, qf, sensor_axis,
-    sensor_target, omegaf, cones: [{axis, half_angle | half_angle_deg}], rate_max
+    sensor_target, omegaf, cones: [{axis, half_angle | half_angle_deg}], rate_max, rate_norm_max
 """
 from __future__ import annotations
 
@@ -49,9 +49,9 @@ MAX_RATE_TAU = 100.0
 _UNIT_ROUNDING_TOL = 8.0 * np.finfo(float).eps
 
 FIELDS = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_axis",
-          "sensor_target", "omegaf", "cones", "rate_max")
-# accepted on input besides FIELDS (``to_dict`` writes the field itself): the rate limit in deg/s
-INPUT_ONLY_FIELDS = ("rate_max_deg",)
+          "sensor_target", "omegaf", "cones", "rate_max", "rate_norm_max")
+# accepted on input besides FIELDS (``to_dict`` writes the field itself): the rate limits in deg/s
+INPUT_ONLY_FIELDS = ("rate_max_deg", "rate_norm_max_deg")
 
 
 def _vector(name, value, length, *, positive=False, allow_scalar=False, unit=False):
@@ -100,6 +100,14 @@ def _number(name, value, what="a number"):
         return float(value)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name}: expected {what}, got {value!r:.120}") from None
+
+
+def _positive_scalar(name, value) -> float:
+    """One finite positive number (``ValueError`` naming ``name`` otherwise)."""
+    x = _number(name, value, "one positive number")
+    if not (math.isfinite(x) and x > 0.0):
+        raise ValueError(f"{name}: expected one finite positive number, got {x!r}")
+    return x
 
 
 def _normalised(arr, n):
@@ -261,14 +269,20 @@ class SlewProblem:
         Per-axis body-rate limit ``|ω_i| ≤ rate_max_i`` (rad per time unit).
     rate_max_deg : number or 3 positive numbers, optional
         The same limit in degrees per time unit (give one of the two; stored as ``rate_max``).
+    rate_norm_max : positive number, optional
+        Limit on the norm of the body rate, ``‖ω‖ ≤ rate_norm_max`` (rad per time unit): what a
+        star tracker's or a gyro's rate limit usually is. Alone or with ``rate_max`` (both hold).
+    rate_norm_max_deg : positive number, optional
+        The same limit in degrees per time unit (stored as ``rate_norm_max``).
     """
 
     __slots__ = ("inertia", "torque_max", "torque_norm", "q0", "omega0", "qf", "sensor_axis",
-                 "sensor_target", "omegaf", "cones", "rate_max")
+                 "sensor_target", "omegaf", "cones", "rate_max", "rate_norm_max")
 
     def __init__(self, inertia, torque_max=1.0, torque_norm="inf", q0=(1.0, 0.0, 0.0, 0.0),
                  omega0=(0.0, 0.0, 0.0), qf=None, sensor_axis=(1.0, 0.0, 0.0),
-                 sensor_target=None, omegaf=(0.0, 0.0, 0.0), cones=(), rate_max=None, rate_max_deg=None):
+                 sensor_target=None, omegaf=(0.0, 0.0, 0.0), cones=(), rate_max=None, rate_max_deg=None,
+                 rate_norm_max=None, rate_norm_max_deg=None):
         self.inertia = _vector("inertia", inertia, 3, positive=True)
         self.torque_max = _vector("torque_max", torque_max, 3, positive=True, allow_scalar=True)
         self.torque_norm = _torque_norm(torque_norm)
@@ -312,6 +326,17 @@ class SlewProblem:
             for name, w in (("omega0", self.omega0), ("omegaf", self.omegaf)):
                 if np.any(np.abs(w) > self.rate_max):
                     raise ValueError(f"{name}: exceeds rate_max ({w.tolist()} vs {self.rate_max.tolist()})")
+        if rate_norm_max_deg is not None:
+            if rate_norm_max is not None:
+                raise ValueError("rate_norm_max, rate_norm_max_deg: give the limit on the rate's norm once, in rad "
+                                 "(rate_norm_max) or in degrees (rate_norm_max_deg) per time unit")
+            rate_norm_max = math.radians(_positive_scalar("rate_norm_max_deg", rate_norm_max_deg))
+        self.rate_norm_max = None if rate_norm_max is None else _positive_scalar("rate_norm_max", rate_norm_max)
+        if self.rate_norm_max is not None:
+            for name, w in (("omega0", self.omega0), ("omegaf", self.omegaf)):
+                if float(np.linalg.norm(w)) > self.rate_norm_max:
+                    raise ValueError(f"{name}: its norm {float(np.linalg.norm(w)):.6g} exceeds rate_norm_max "
+                                     f"{self.rate_norm_max:.6g}")
         for name, direction in (("q0", self.start_direction), ("qf" if self.qf is not None
                                                                else "sensor_target", self.target_direction)):
             for k, cone in enumerate(self.cones):
@@ -366,6 +391,24 @@ class SlewProblem:
     def is_rest_to_rest(self) -> bool:
         return not self.omega0.any() and not self.omegaf.any()
 
+    @property
+    def has_rate_limit(self) -> bool:
+        """A limit on the body rate: per axis (``rate_max``), on its norm (``rate_norm_max``), or both."""
+        return self.rate_max is not None or self.rate_norm_max is not None
+
+    def rate_limit_ratio(self, omega) -> float:
+        """The largest ``|ω_i| / rate_max_i`` and ``‖ω‖ / rate_norm_max`` over the rows of ``omega``
+        (body rates, problem units): at most 1 where the rate limits hold; 0 without a limit."""
+        w = np.asarray(omega, dtype=float).reshape(-1, 3)
+        worst = 0.0
+        if w.shape[0] == 0:
+            return worst
+        if self.rate_max is not None:
+            worst = max(worst, float(np.max(np.abs(w) / self.rate_max)))
+        if self.rate_norm_max is not None:
+            worst = max(worst, float(np.max(np.linalg.norm(w, axis=1))) / self.rate_norm_max)
+        return worst
+
     # ------------------------------------------------------------------ packing
     def to_task_array(self, max_cones: Optional[int] = None) -> np.ndarray:
         """Pack into the flat float64 layout of ``slew_env.core.task``."""
@@ -374,6 +417,9 @@ class SlewProblem:
             max_cones = n
         if n > max_cones:
             raise ValueError(f"cones: {n} cones given but at most {max_cones} supported here")
+        if self.rate_norm_max is not None:
+            raise ValueError("rate_norm_max: the environment and its task arrays hold per-axis rate limits only "
+                             "(rate_max); a limit on the rate's norm is for the solvers")
         t = np.zeros(_t.task_length(max_cones))
         t[_t.T_J:_t.T_J + 3] = self.inertia
         t[_t.T_UMAX:_t.T_UMAX + 3] = self.torque_max
@@ -432,6 +478,7 @@ class SlewProblem:
             "omegaf": self.omegaf.tolist(),
             "cones": [c.to_dict() for c in self.cones],
             "rate_max": None if self.rate_max is None else self.rate_max.tolist(),
+            "rate_norm_max": self.rate_norm_max,
         }
 
     @classmethod
@@ -446,7 +493,8 @@ class SlewProblem:
                              f"{list(FIELDS + INPUT_ONLY_FIELDS)}")
         if d.get("inertia") is None:
             raise ValueError("inertia: missing (3 principal moments of inertia)")
-        kwargs = {k: v for k, v in d.items() if v is not None or k in ("qf", "sensor_target", "rate_max")}
+        kwargs = {k: v for k, v in d.items() if v is not None or k in ("qf", "sensor_target", "rate_max",
+                                                                      "rate_norm_max")}
         return cls(**kwargs)
 
     def to_json(self, **kw) -> str:
@@ -489,6 +537,8 @@ class SlewProblem:
             d["qf"] = None
         if changes.get("rate_max_deg") is not None:
             d["rate_max"] = None
+        if changes.get("rate_norm_max_deg") is not None:
+            d["rate_norm_max"] = None
         d.update(changes)
         return SlewProblem.from_dict(d)
 

@@ -256,7 +256,7 @@ def _pointing_singular_check(prob) -> bool:
     slews (``pointing-cones`` without cones, seed 11; ``runs/s27/pointing_singular.py``): the
     evidence showed on 22 of the 26 without an exact answer (a roll-axis torque interior over
     9-84 % of tf) and on none of the 74 with one, where the futile refinement took 0.5-1.2 s."""
-    return (prob.qf is None and not prob.cones and math.isinf(prob.torque_norm) and prob.rate_max is None)
+    return (prob.qf is None and not prob.cones and math.isinf(prob.torque_norm) and not prob.has_rate_limit)
 
 
 def pnorm_indirect_first(prob) -> bool:
@@ -271,7 +271,7 @@ def pnorm_indirect_first(prob) -> bool:
     p = 3 it failed on 2 of 40 and returned a local optimum 2.8 % slower on 1: collocation first."""
     p = float(prob.torque_norm)
     J = np.asarray(prob.inertia, dtype=float)
-    return (math.isfinite(p) and p <= 2.0 and not prob.cones and prob.rate_max is None and not prob.is_pointing
+    return (math.isfinite(p) and p <= 2.0 and not prob.cones and not prob.has_rate_limit and not prob.is_pointing
             and prob.is_rest_to_rest and float(J.min() / J.max()) >= PNORM_INDIRECT_MIN_INERTIA_RATIO)
 
 

@@ -47,7 +47,9 @@ Constraints
   set lies inside the true ball, by at most ``3 δ^{p/2}`` in ``Σ|v_i|^p``);
 * rate limit: box bounds ``|ω_i| ≤ rate_max,i`` on node and midpoint rates, and on the two
   inner Bernstein coefficients ``ω_k + h ω̇_k/3``, ``ω_k+1 - h ω̇_k+1/3`` of each interval's
-  cubic rate (same argument: the cubic stays within the limit between the samples);
+  cubic rate (same argument: the cubic stays within the limit between the samples); a limit on
+  the rate's norm, ``‖ω‖² ≤ rate_norm_max²`` (in units of the limit) at the interior nodes and
+  on both inner coefficients (the ball is convex: the cubic stays inside it);
 * keep-out cones: ``a·d(q) - cos(α + δ_c r) |q|² ≤ 0`` (homogeneous in ``q``) at the interior
   nodes and all midpoints (the end points are fixed by the start and the target, which
   ``SlewProblem`` checks and which may lie on a cone boundary, as in R4). ``δ_c`` is a
@@ -117,7 +119,8 @@ state. Checks:
 * ``cone_clearance`` — smallest clearance margin (rad) at the collocation points and on
   the re-propagated path (a certified lower bound at every instant, from 96 samples per
   interval, ``solvers.clearance``); must be ≥ -1e-6;
-* ``rate_limit`` — ``max |ω_i| / rate_max,i`` on the same samples (with a rate limit), at most
+* ``rate_limit`` — ``max |ω_i| / rate_max,i`` and ``max ‖ω‖ / rate_norm_max`` on the same samples
+  (with a rate limit), at most
   1 + 1e-9: the NLP keeps the limit at its points, and where the replayed path exceeds it
   between them (~1e-5 relative along an arc that rides the limit) the NLP is solved again with
   the limit scaled down by 1.5 times the excess (a back-off, up to 4 rounds);
@@ -395,11 +398,8 @@ def _post(sc: collocation_nlp.Scaled, run: collocation_nlp.Run, Tc, tols, rep: _
         else:
             m = -math.inf
         checks["cone_clearance"] = make_check(m, tols["cone_clearance"], m >= tols["cone_clearance"])
-    if prob.rate_max is not None:
-        wmax = np.max(np.abs(x_all[:, 4:7]), axis=0)
-        if rep.x is not None:
-            wmax = np.maximum(wmax, np.max(np.abs(rep.x[:, 4:7]), axis=0))
-        worst = float(np.max(wmax / sc.rate)) if rep.x is not None else math.inf
+    if prob.has_rate_limit:
+        worst = max(sc.rate_ratio(x_all[:, 4:7]), sc.rate_ratio(rep.x[:, 4:7])) if rep.x is not None else math.inf
         checks["rate_limit"] = make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])
     if math.isinf(sc.p):
         tb = float(np.max(np.abs(u_all) / sc.U))
@@ -817,9 +817,12 @@ def _short_rate_arcs(prob, h) -> bool:
     default mesh's interval ``h``: arcs that 2N and 4N uniform intervals cannot follow either, so
     the local refinement goes first (elsewhere uniform refinement, the cheaper where it works,
     goes first: J = [1, 2, 3] at 0.05 rad/s needs 120 uniform intervals, 193 local ones)."""
-    if prob.rate_max is None:
+    if not prob.has_rate_limit:
         return False
-    t_reach = np.asarray(prob.rate_max, float) * np.asarray(prob.inertia, float) / np.asarray(prob.torque_max, float)
+    # (the limit an axis meets alone: its own, or the norm's)
+    limit = np.minimum(np.inf if prob.rate_max is None else np.asarray(prob.rate_max, float),
+                       np.inf if prob.rate_norm_max is None else prob.rate_norm_max)
+    t_reach = limit * np.asarray(prob.inertia, float) / np.asarray(prob.torque_max, float)
     return bool(np.max(t_reach) < 0.25 * h)
 
 
@@ -836,6 +839,8 @@ def _local_edges(sol, edges):
     scaled = u / np.asarray(prob.torque_max, float)
     if prob.rate_max is not None:
         scaled = np.hstack([scaled, w / np.asarray(prob.rate_max, float)])
+    if prob.rate_norm_max is not None:
+        scaled = np.hstack([scaled, np.linalg.norm(w, axis=1, keepdims=True) / prob.rate_norm_max])
     n = edges.size - 1
     x = t / sol.tf
     k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, n - 1)
@@ -895,8 +900,8 @@ def prebuild_nlps(problem, n_intervals=None, tol=1e-8, max_iter=3000, coarse=Tru
     for n, tl, mi in [(Nc, coarse_tol, coarse_iter), (N, tol, max_iter), (N_half, coarse_tol, coarse_iter)]:
         if n is not None:
             tpl = collocation_nlp.nlp_template(n, prob.is_pointing, len(prob.cones), float(sc.p),
-                                               sc.rate is not None, float(tl), int(mi), bool(verbose))
-            if n == N and (prob.cones or sc.rate is not None):
+                                               sc.rate_kind, float(tl), int(mi), bool(verbose))
+            if n == N and (prob.cones or prob.has_rate_limit):
                 tpl.warm_solver     # the back-off rounds start from the answer's primal-dual point
     return time.perf_counter() - t0
 
@@ -1051,7 +1056,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     # the points and the Bernstein coefficients of the scheme's cubic; the replayed path can
     # still exceed the limit slightly (1e-5 relative) along an arc that rides it. Re-solve with
     # the limit scaled down by the excess until the replay keeps it.
-    if sc.rate is not None:
+    if prob.has_rate_limit:
         def rate_round(run, excess, warm):
             scale = max(0.5, run.nlp.rate_scale * (1.0 - 1.5 * excess) - 1e-9)
             return (run.nlp.with_rate_scale(scale).solve(run.w, deadline, run.source, delta=run.delta,
@@ -1059,7 +1064,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
                     f"rate back-off {1.0 - scale:.2g}")
         # (rounds stop within 1e-10 of the limit: the check allows 1e-9)
         best, rep, n1, n2 = _back_off(sc, best, rep, deadline, failures, rate_round,
-                                      lambda run, r: float(np.max(np.abs(r.x[:, 4:7]) / sc.rate)) - 1.0 - 1e-10)
+                                      lambda run, r: sc.rate_ratio(r.x[:, 4:7]) - 1.0 - 1e-10)
         nit, nfev = nit + n1, nfev + n2
     from_coarse = math.isfinite(Tc)
     # tf_tol compares the answer with a coarser grid's answer in its basin: with cones an N / 2
@@ -1147,7 +1152,7 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     msg = f"Collocation NLP solved (IPOPT {best.status}) and verified by re-propagation."
     if not prob.cones and math.isfinite(baseline) and math.isinf(sc.p) and near:
         msg += (f" Within 0.1 % of the eigenaxis slew ({baseline:.9g}), as {escaped} symmetry-breaking starts "
-                "agree" + (": the slew is small enough for the two to agree to first order." if prob.rate_max is None
+                "agree" + (": the slew is small enough for the two to agree to first order." if not prob.has_rate_limit
                            else " (with an active rate limit the two can agree this closely)."))
     if len(cands) > 1:
         msg += f" Best of {len(cands)} refined local optima (final times {cands})."

@@ -65,6 +65,8 @@ def _trapezoid_path(sc: collocation_nlp.Scaled, q_start, q_end, source):
     th = 2.0 * math.atan2(v, d[0])
     acc = eigenaxis_acceleration(sc.J, sc.U, sc.p, n)
     wmax = math.inf if sc.rate is None else float(np.min(sc.rate[np.abs(n) > 1e-12] / np.abs(n[np.abs(n) > 1e-12])))
+    if sc.rate_norm is not None:     # (n is a unit vector: the rate's norm is the angle's rate)
+        wmax = min(wmax, sc.rate_norm)
     t1 = math.sqrt(max(th, 1e-12) / acc)
     if acc * t1 > wmax:      # trapezoid: accelerate to wmax, coast, decelerate
         t1 = wmax / acc
@@ -93,7 +95,7 @@ def _eigen_path(sc: collocation_nlp.Scaled, q_start, q_end, source):
     if not math.isinf(sc.p):
         return _trapezoid_path(sc, q_start, q_end, source)
     sub = SlewProblem(prob.inertia, prob.torque_max, prob.torque_norm, q0=q_start, qf=q_end,
-                      rate_max=prob.rate_max)
+                      rate_max=prob.rate_max, rate_norm_max=prob.rate_norm_max)
     es = eigenaxis_slew(sub, n_grid=400)
     if es.tf <= 0.0:
         t = np.array([0.0, 1.0])

@@ -34,6 +34,7 @@ class Scaled:
     wf: np.ndarray
     rate: Optional[np.ndarray]
     p: float
+    rate_norm: Optional[float] = None     # the limit on the rate's norm (nondimensional)
 
     @classmethod
     def of(cls, prob):
@@ -41,8 +42,27 @@ class Scaled:
         umax0 = float(prob.torque_max.max())
         tau = math.sqrt(Jmax / umax0)
         rate = None if prob.rate_max is None else prob.rate_max * tau
+        rate_norm = None if prob.rate_norm_max is None else prob.rate_norm_max * tau
         return cls(prob, tau, umax0, prob.inertia / Jmax, prob.torque_max / umax0,
-                   np.concatenate([prob.q0, prob.omega0 * tau]), prob.omegaf * tau, rate, prob.torque_norm)
+                   np.concatenate([prob.q0, prob.omega0 * tau]), prob.omegaf * tau, rate, prob.torque_norm,
+                   rate_norm)
+
+    def rate_ratio(self, w) -> float:
+        """The largest ``|ω_i| / rate_i`` and ``‖ω‖ / rate_norm`` over the rows of the
+        nondimensional rates ``w`` (``SlewProblem.rate_limit_ratio`` in these units); 0 without
+        a limit."""
+        w = np.asarray(w, dtype=float).reshape(-1, 3)
+        worst = 0.0
+        if self.rate is not None:
+            worst = float(np.max(np.max(np.abs(w), axis=0) / self.rate))
+        if self.rate_norm is not None:
+            worst = max(worst, float(np.max(np.linalg.norm(w, axis=1))) / self.rate_norm)
+        return worst
+
+    @property
+    def rate_kind(self) -> tuple:
+        """``(per-axis limit, norm limit)``: which rate constraints the NLP has (part of its structure)."""
+        return (self.rate is not None, self.rate_norm is not None)
 
 
 # ----------------------------------------------------------------------------- the NLP
@@ -101,7 +121,7 @@ class _Template:
         SX = ca.SX
         # ---- parameters
         nt = 9 if pointing else 4
-        P = SX.sym("P", 3 + 3 + nt + 3 + 4 * n_cones + 1 + N)
+        P = SX.sym("P", 3 + 3 + nt + 3 + 4 * n_cones + 1 + N + 1)
         o = 0
         Jp = P[o:o + 3]; o += 3
         Up = P[o:o + 3]; o += 3
@@ -110,9 +130,10 @@ class _Template:
         cone_p = [P[o + 4 * c:o + 4 * c + 4] for c in range(n_cones)]; o += 4 * n_cones
         delta = P[o]; o += 1
         mesh = P[o:o + N]; o += N
+        rnorm = P[o]; o += 1          # the limit on the rate's norm (used with one)
         self.n_par = int(P.shape[0])
         self.i_par = dict(J=0, U=3, tdat=6, sb=6 + nt, cones=6 + nt + 3, delta=6 + nt + 3 + 4 * n_cones,
-                          mesh=6 + nt + 3 + 4 * n_cones + 1)
+                          mesh=6 + nt + 3 + 4 * n_cones + 1, rnorm=6 + nt + 3 + 4 * n_cones + 1 + N)
         # ---- dynamics
         x = SX.sym("x", 7)
         u = SX.sym("u", 3)
@@ -211,13 +232,24 @@ class _Template:
         # Hermite interpolant of (ω_k, ω̇_k, ω_k+1, ω̇_k+1), whose Bernstein coefficients are
         # ω_k, ω_k + h ω̇_k / 3, ω_k+1 - h ω̇_k+1 / 3, ω_k+1: bounding the inner two (the outer
         # ones are the node values, box-bounded) keeps the whole cubic within the limit
-        if rate:
+        box, norm = (rate, False) if isinstance(rate, bool) else rate
+        if box or norm:
             hh = SX.sym("hh")
             wd_k = f(xk, uk, J)[4:7]
             wd_k1 = f(xk1, uk1, J)[4:7]
             RB = ca.Function("rb", [xk, xk1, uk, uk1, hh, J],
                              [ca.vertcat(xk[4:7] + hh / 3.0 * wd_k, xk1[4:7] - hh / 3.0 * wd_k1)])
-            add("rate_bernstein", RB.map(N)(X[:, :N], X[:, 1:], Uk[:, :N], Uk[:, 1:], T * mesh.T, Jrep))
+            rb = RB.map(N)(X[:, :N], X[:, 1:], Uk[:, :N], Uk[:, 1:], T * mesh.T, Jrep)
+            if box:
+                add("rate_bernstein", rb)
+            if norm:
+                # the norm limit: a cubic lies in the convex hull of its Bernstein coefficients and
+                # the ball is convex, so ‖·‖ ≤ r at the interior nodes and at both inner
+                # coefficients of every interval holds along the whole cubic (the ends are fixed;
+                # the midpoints lie on the cubic); in units of r, so that IPOPT's feasibility
+                # tolerance is relative to the limit
+                W = ca.horzcat(X[4:7, 1:N], rb[0:3, :], rb[3:6, :]) / rnorm
+                add("rate_norm", ca.sum1(W * W))
         # keep-out cones at interior nodes and all midpoints (the ends are fixed by the
         # start and the target and may sit on a boundary); back-off δ ramps up over the
         # first and last two intervals
@@ -321,7 +353,7 @@ class NLP:
         prob = sc.prob
         N = int(mesh.shape[0])
         self.sc, self.N, self.mesh = sc, N, np.asarray(mesh, float)
-        tpl = nlp_template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate is not None, float(tol),
+        tpl = nlp_template(N, prob.is_pointing, len(prob.cones), float(sc.p), sc.rate_kind, float(tol),
                            int(max_iter), bool(verbose), deadline)
         self.tpl = tpl
         self.nx = tpl.nx
@@ -341,6 +373,7 @@ class NLP:
             P[ip["cones"] + 4 * c:ip["cones"] + 4 * c + 3] = cone.axis
             P[ip["cones"] + 4 * c + 3] = cone.half_angle
         P[ip["mesh"]:ip["mesh"] + N] = self.mesh
+        P[ip["rnorm"]] = 1.0 if sc.rate_norm is None else sc.rate_norm
         self.P = P
         # ---- bounds
         lbx = np.full(tpl.nx, -np.inf)
@@ -383,6 +416,9 @@ class NLP:
         if "ball" in lay:
             a, b = lay["ball"]
             ubg[a:b] = 1.0
+        if "rate_norm" in lay:
+            a, b = lay["rate_norm"]
+            ubg[a:b] = 1.0
         self.lbg, self.ubg = lbg, ubg
         a, b = lay["simpson"]
         self.ig_simpson = np.arange(a, b).reshape(N, 7)
@@ -409,6 +445,9 @@ class NLP:
             a, b = self.tpl.layout["rate_bernstein"]
             other.lbg[a:b] *= f
             other.ubg[a:b] *= f
+        if "rate_norm" in self.tpl.layout:      # (squared norms, in units of the limit)
+            a, b = self.tpl.layout["rate_norm"]
+            other.ubg[a:b] *= f * f
         other.rate_scale = scale
         return other
 

@@ -80,6 +80,8 @@ def _rate_cap(problem, n) -> float:
         for i in range(3):
             if abs(n[i]) > 1e-15:
                 s_rate = min(s_rate, (problem.rate_max[i] / abs(n[i])) ** 2)
+    if problem.rate_norm_max is not None:       # ‖θ̇ n‖ = θ̇ (n a unit vector)
+        s_rate = min(s_rate, problem.rate_norm_max ** 2)
     return s_rate
 
 

@@ -165,8 +165,8 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
               "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
               "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
-    if prob.rate_max is not None:
-        rl = float(np.max(np.max(rate) * np.abs(n) / np.asarray(prob.rate_max, float)))
+    if prob.has_rate_limit:
+        rl = prob.rate_limit_ratio(float(np.max(rate)) * n)
         checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
     if target.cones:
         from .clearance import CLEARANCE_TOL, certified_min_margin

@@ -309,11 +309,12 @@ def load_kernels():
 
 def rate_limit_active(problem, col) -> bool:
     """Whether collocation's answer runs at the rate limit (some ``|ω_i|`` at 98 % of
-    ``rate_max_i`` or more): holding a rate limit needs an interior torque, which no bang-bang
-    sequence gives, so the optimisation is not tried (its answer would fail the rate check)."""
-    if problem.rate_max is None or col.omega is None or len(col.omega) == 0:
+    ``rate_max_i``, or ``‖ω‖`` at 98 % of ``rate_norm_max``, or more): holding a rate limit needs
+    an interior torque, which no bang-bang sequence gives, so the optimisation is not tried (its
+    answer would fail the rate check)."""
+    if not problem.has_rate_limit or col.omega is None or len(col.omega) == 0:
         return False
-    return bool(np.max(np.abs(np.asarray(col.omega, float)) / problem.rate_max[None, :]) >= 0.98)
+    return problem.rate_limit_ratio(col.omega) >= 0.98
 
 
 def switch_time_cones_applies(problem) -> bool:

@@ -19,7 +19,8 @@ Checks (each a dict ``{value, tol, passed}`` in ``SlewSolution.verification``):
   switches on the same axes at the same instants as the switch-time solution, to 1e-9 of
   ``tf`` divided by each switch's conditioning (``switch_deviation``: a switching function
   that crosses zero slowly fixes its zero less precisely);
-* ``rate_limit`` — ``max |ω_i| / rate_max_i`` (only when the problem has one);
+* ``rate_limit`` — ``max |ω_i| / rate_max_i`` and ``max ‖ω‖ / rate_norm_max``, the larger (only
+  when the problem has a rate limit);
 * ``replay`` — an independent re-propagation with a different integrator: for the
   per-axis bound, the returned switch times and first-arc signs alone, integrated by
   the environment's fixed-step RK4 (``slew_env.core.propagate``); for a p-norm bound,
@@ -152,12 +153,13 @@ def extremal_checks(bvp, tr, tols):
 
 
 def rate_limit_check(bvp, Y, tols):
-    """``rate_limit`` (``max |ω_i| / rate_max_i`` over the nondimensional states ``Y``) when the
-    problem has one, else nothing."""
+    """``rate_limit`` (``max |ω_i| / rate_max_i`` and ``max ‖ω‖ / rate_norm_max`` over the
+    nondimensional states ``Y``: ``SlewProblem.rate_limit_ratio``) when the problem has a rate
+    limit, else nothing."""
     prob = bvp.problem
-    if prob.rate_max is None:
+    if not prob.has_rate_limit:
         return {}
-    worst = float(np.max(np.max(np.abs(Y[:, 4:7]), axis=0) / bvp.tau / prob.rate_max))
+    worst = prob.rate_limit_ratio(np.asarray(Y)[:, 4:7] / bvp.tau)
     return {"rate_limit": make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])}
 
 

@@ -75,7 +75,7 @@ def challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSol
     slow = warm.tf > pred * (1.0 + LOCAL_OPTIMUM_MARGIN)
     # (measured on per-axis rest-to-rest slews without rate limits, the shipped model's family)
     half_turn = (prob.qf is not None and prob.is_rest_to_rest and math.isinf(prob.torque_norm)
-                 and prob.rate_max is None and math.degrees(prob.slew_angle) > 180.0 - HALF_TURN_MARGIN_DEG)
+                 and not prob.has_rate_limit and math.degrees(prob.slew_angle) > 180.0 - HALF_TURN_MARGIN_DEG)
     if not (slow or half_turn):
         return warm
     reason = " and ".join(r for r, on in (("slower than predicted", slow), ("near a half turn", half_turn)) if on)

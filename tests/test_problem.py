@@ -380,7 +380,8 @@ def test_rates_beyond_rate_max_rejected(field):
 def test_dict_uses_documented_field_names():
     d = full_problem().to_dict()
     assert set(d) == set(FIELDS) == {"inertia", "torque_max", "torque_norm", "q0", "omega0", "qf",
-                                     "sensor_axis", "sensor_target", "omegaf", "cones", "rate_max"}
+                                     "sensor_axis", "sensor_target", "omegaf", "cones", "rate_max",
+                                     "rate_norm_max"}
     assert set(d["cones"][0]) == {"axis", "half_angle"}
     assert d["cones"][0]["half_angle"] == pytest.approx(math.radians(20), rel=1e-15)
     assert d["torque_norm"] == 2.5

@@ -78,6 +78,8 @@ class ConeWarmStartModel(WarmStartModel):
         d = self.domain
         if problem.rate_max is not None and not d.get("rate_max", False):
             return "rate_max: the model was trained without rate limits", None
+        if problem.rate_norm_max is not None and not d.get("rate_norm_max", False):
+            return "rate_norm_max: the model was trained without a limit on the rate's norm", None
         if not math.isinf(problem.torque_norm):
             return f"torque_norm: the model covers the per-axis bound ('inf'), got {problem.torque_norm}", None
         lo_n, hi_n = d.get("n_cones", (1, MAX_CONES))

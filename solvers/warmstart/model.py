@@ -233,6 +233,8 @@ class WarmStartModel:
         d = self.domain
         if problem.rate_max is not None and not d.get("rate_max", False):
             return "rate_max: the model was trained without rate limits"
+        if problem.rate_norm_max is not None and not d.get("rate_norm_max", False):
+            return "rate_norm_max: the model was trained without a limit on the rate's norm"
         norm = d.get("torque_norm", "inf")
         p = problem.torque_norm
         if str(norm) != ("inf" if math.isinf(p) else repr(float(p))):

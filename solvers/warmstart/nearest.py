@@ -38,6 +38,8 @@ def table_coverage(problem, unsupported):
         return why
     if problem.rate_max is not None:
         return "rate_max: the table holds problems without rate limits"
+    if problem.rate_norm_max is not None:
+        return "rate_norm_max: the table holds problems without rate limits"
     if not math.isinf(problem.torque_norm):
         return f"torque_norm: the table holds per-axis (inf) solutions, got {problem.torque_norm}"
     return None
