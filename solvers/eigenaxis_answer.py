@@ -200,7 +200,6 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
                         verification=checks, problem=target, _control=control)
 
 
-
 def eigenaxis_unless_faster(prob, tf):
     """``(baseline, eig)`` for a rest-to-rest, full-attitude, per-axis problem and a final time
     ``tf``: if ``tf`` is below the fine-grid eigenaxis time (problem units) by the margin
