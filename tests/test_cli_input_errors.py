@@ -61,3 +61,55 @@ def test_env_demo_bad_arguments(tmp_path, capsys, extra, needle):
     code = main(["env-demo", "--steps", "2"] + extra)
     err = capsys.readouterr().err
     assert code == 2 and needle in err and "Traceback" not in err
+
+
+WARM = ["--solve-fn", "training.generate:solve_warm"]
+
+
+@pytest.mark.parametrize("extra, needle", [
+    # the warm route (make_shipped_model.sh, steps 3 and 5) had ignored a typo, and filled a
+    # whole file with "model: file not found" failures that a rerun never repaired, with exit 0
+    (WARM + ["--solve-options", '{"model": "no/such/model.npz", "time_budget": 0.3}'], "model: "),
+    (WARM + ["--solve-options", '{"time_budgt": 0.3}'], "unknown option(s) ['time_budgt']"),
+    (WARM + ["--solve-options", '{"fallback": true, "singular_tabel": false}'], "unknown option(s) ['singular_tabel']"),
+    (WARM + ["--solve-options", '{"fallback": "yes"}'], "fallback: expected true or false"),
+    (WARM + ["--solve-options", '{"time_budget": -1}'], "time_budget: must be a positive"),
+    (["--n", "1000000001"], "n: at most 1,000,000 problems a run"),
+])
+def test_generate_checks_the_warm_route_and_n_before_writing(tmp_path, capsys, extra, needle):
+    out = tmp_path / "g.jsonl"
+    args = ["generate", "--family", "full-attitude", "--workers", "1", "--no-progress", "-o", str(out)]
+    code = main(args + (["--n", "2"] if "--n" not in extra else []) + extra)
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+def test_generate_names_the_output_it_cannot_create(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code = main(["generate", "--family", "full-attitude", "--n", "1", "--workers", "1", "--no-progress",
+                 "-o", str(blocker / "sub" / "a.jsonl")])
+    err = capsys.readouterr().err
+    assert code == 2 and "-o/--output: cannot create the directory" in err and "Traceback" not in err
+
+
+def test_generate_warns_when_workers_exceed_the_cores(tmp_path, capsys):
+    import os
+    cores = len(os.sched_getaffinity(0))
+    assert main(["generate", "--family", "full-attitude", "--n", "0", "--workers", str(cores + 1),
+                 "--no-progress", "-o", str(tmp_path / "g.jsonl")]) == 0
+    assert f"--workers {cores + 1} is more than the {cores} usable core(s)" in capsys.readouterr().err
+
+
+def test_a_continued_file_notes_another_route_and_every_record_names_its_options(tmp_path, capsys):
+    from training.dataset import load
+    out = tmp_path / "g.jsonl"
+    base = ["generate", "--family", "full-attitude", "--workers", "1", "--no-progress", "-o", str(out),
+            "--solve-fn", "gen_sleepy:solve"]
+    assert main(base + ["--n", "1", "--solve-options", '{"sleep": 0}']) == 0
+    assert "note:" not in capsys.readouterr().out
+    assert main(base + ["--n", "2", "--solve-options", '{"sleep": 0.01}']) == 0
+    out_text = capsys.readouterr().out
+    assert 'note: this run solved with solve_options {"sleep": 0.01} (the file began with {"sleep": 0})' in out_text
+    assert [r["solve_options"] for r in load(out)] == [{"sleep": 0}, {"sleep": 0.01}]

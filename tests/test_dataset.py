@@ -183,3 +183,14 @@ def test_bad_records_refused(tmp_path):
             with pytest.raises(DatasetError):
                 w.append(bad)
     assert load(p) == []
+
+
+@pytest.mark.parametrize("content", [b'{"inertia": [1, 1, 1], "qf": [0, 0, 0, 1]}',   # json.dump: no newline
+                                     b"my notes\n", b"x"])
+def test_an_existing_file_that_is_not_a_dataset_is_left_alone(tmp_path, content):
+    # a one-line file had been read as "a partial last line", cut away and replaced by metadata
+    p = tmp_path / "problem.json"
+    p.write_bytes(content)
+    with pytest.raises(DatasetError, match="not a slew dataset file .* refusing to append to it or overwrite it"):
+        DatasetWriter(p, _meta())
+    assert p.read_bytes() == content

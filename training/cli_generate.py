@@ -9,15 +9,17 @@
                   [--no-progress] [--no-fsync]
 
 Problem ``i`` is the family's task distribution sampled with
-``np.random.default_rng([seed, i])``; each is solved (``solvers.solve`` multi-start by
-default) and appended to the JSON Lines file ``-o`` as soon as it completes. Running the
+``np.random.default_rng([seed, i])``; each is solved (by default ``solvers.solve`` with
+``method="auto"``: collocation first, then the exact refinement; no learned warm start) and
+appended to the JSON Lines file ``-o`` as soon as it completes. Running the
 same command again continues an interrupted (even SIGKILLed) run: indices already in the
 file are skipped; a partial last line is cut away. A file generated with another family,
-seed or distribution is refused.
+seed or distribution is refused, and so is an existing file that is not a dataset.
 
 Exit code: 0 when every index ``0 .. n-1`` is in the file (failure records included),
-1 when some are missing (interrupted, or a worker died: run the command again), 2 on bad
-options or a file that cannot be continued.
+1 when some are missing (a worker died, or the run did not finish: run the command again),
+130 on Ctrl-C and 143 on SIGTERM (the solve in progress is not recorded; run the command
+again), 2 on bad options or a file that cannot be continued.
 """
 from __future__ import annotations
 
@@ -107,10 +109,23 @@ def run(args):
 
     spec = build_spec(args)
     # as train and train-rl make their --out: the README's `-o data/a.jsonl` on a fresh clone
-    os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)
+    out_dir = os.path.dirname(os.path.abspath(args.output))
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"-o/--output: cannot create the directory {out_dir!r}: {e.strerror or e}") from None
+    cores = _usable_cores()
+    if args.backend == "local" and args.workers is not None and args.workers > cores:
+        # wall-clock time budgets then cut solves short, and their failure records are kept
+        print(f"slew generate: warning: --workers {args.workers} is more than the {cores} usable core(s); each "
+              "solve gets less of a core, so time budgets cut more solves short and those failures are kept",
+              file=sys.stderr)
     s = generate(spec, args.output, workers=args.workers, backend=args.backend, address=args.address,
                  progress=not args.no_progress, fsync=not args.no_fsync)
     out = sys.stdout
+    if s.route_note:
+        print(f"{args.output}: note: this run solved with {s.route_note}; each record names its own "
+              "solve_fn and solve_options", file=out)
     if s.truncated_bytes:
         print(f"{args.output}: cut away a partial last line ({s.truncated_bytes} bytes) left by an "
               "interrupted run", file=out)
@@ -133,5 +148,12 @@ def run(args):
         head = ", ".join(str(i) for i in s.missing[:10]) + (" ..." if len(s.missing) > 10 else "")
         print(f"{len(s.missing)} index(es) missing ({why}): {head}; run the same command again to continue",
               file=sys.stderr)
-        return 130 if s.interrupted else 1
+        return 128 + int(s.signal or 2) if s.interrupted else 1
     return 0
+
+
+def _usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1

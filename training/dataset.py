@@ -251,7 +251,10 @@ def _create_with_meta(path, meta):
     d = os.path.dirname(target)
     if not os.path.isdir(d):
         raise DatasetError(f"{path}: directory {d!r} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{os.path.basename(target)}.", suffix=".tmp")
+    except OSError as e:      # (the temporary file's name is not one the user gave)
+        raise DatasetError(f"{path}: cannot create the file in {d!r}: {e.strerror or e}") from None
     try:
         _write_all(fd, dumps_line({META_KEY: meta}))
         os.fsync(fd)
@@ -320,13 +323,20 @@ class DatasetWriter:
                     break
                 data += chunk
             scan = _scan_bytes(data, self.path)
+            if scan.meta is None and data and not data.startswith(b'{"' + META_KEY.encode() + b'"'):
+                # no metadata line, but content that does not begin one: not a dataset — a JSON
+                # file or notes given as -o by mistake, which cutting the "partial line" away
+                # would destroy (a run killed while writing the metadata leaves its beginning)
+                raise DatasetError(f"{self.path}: not a slew dataset file (its {len(data)} byte(s) hold no "
+                                   f"{{\"{META_KEY}\": {{...}}}} metadata line); refusing to append to it or "
+                                   "overwrite it: give another output file")
             if scan.partial_tail:
                 # a run killed mid-write left a partial line: cut it away before appending
                 os.ftruncate(fd, scan.good_bytes)
                 os.fsync(fd)
                 self.truncated_bytes = len(scan.partial_tail)
             if scan.meta is None:
-                # empty file (or only a partial metadata line, now truncated): write the metadata
+                # an empty file (or only a partial metadata line, now truncated): write the metadata
                 _write_all(fd, dumps_line({META_KEY: meta}))
                 os.fsync(fd)
                 self.meta = meta

@@ -31,8 +31,10 @@ import importlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Optional
@@ -52,11 +54,15 @@ GENERATOR_STATUS_MESSAGES = {
 }
 
 DEFAULT_SOLVE_FN = "training.generate:solve_default"
+WARM_SOLVE_FN = "training.generate:solve_warm"
+# the most problems one run generates: its indices and the missing ones are lists in memory (a
+# typo of 1e9 asked for ~36 GB); more data come from more seeds
+MAX_N = 1_000_000
 
 RECORD_FIELDS = ("index", "family", "seed", "problem", "success", "status", "message", "tf", "tf_tol",
                  "costate0", "switch_times", "u_first", "nit", "nfev", "wall_time_s", "n_candidates",
                  "candidates_tf", "method", "route", "guess", "baseline_tf", "verification", "exact",
-                 "solve_fn", "solver_version", "solver_commit")
+                 "solve_fn", "solve_options", "solver_version", "solver_commit")
 
 
 # --------------------------------------------------------------------------- problems
@@ -81,19 +87,16 @@ class GenerationSpec:
             raise ValueError(f"seed: expected a non-negative integer, got {self.seed!r}")
         if not isinstance(self.n, (int, np.integer)) or self.n < 0:
             raise ValueError(f"n: expected a non-negative integer, got {self.n!r}")
+        if self.n > MAX_N:
+            raise ValueError(f"n: at most {MAX_N:,} problems a run (got {self.n:,}); generate more with other seeds")
         if ":" not in self.solve_fn:
             raise ValueError(f"solve_fn: expected 'module:function', got {self.solve_fn!r}")
         self.distribution()   # validates family and overrides now, with the TaskDistribution's errors
-        if self.solve_fn == DEFAULT_SOLVE_FN:
+        if self.solve_fn in (DEFAULT_SOLVE_FN, WARM_SOLVE_FN):
             # bad options would otherwise become a rejection record at every index, kept for
             # good by a resumed run (a fuzz run: exit 0 with a dataset of rejections)
-            import solvers
-            opts = dict(self.solve_options)
-            method = opts.pop("method", "auto")
-            for key in ("warm_start", "guess"):
-                opts.pop(key, None)
             try:
-                solvers.check_options(method, **opts)
+                check_route_options(self.solve_fn, self.solve_options)
             except ValueError as e:
                 raise ValueError(f"solve_options: {e}") from None
 
@@ -109,6 +112,32 @@ class GenerationSpec:
         return make_meta(self.family, int(self.seed), self.distribution_dict(), n=int(self.n),
                          overrides=self.overrides, seeding="np.random.default_rng([seed, index])",
                          solve_fn=self.solve_fn, solve_options=self.solve_options, **extra)
+
+
+def check_route_options(solve_fn: str, options: dict) -> None:
+    """The checks the built-in routes make of their options before any problem (``ValueError``
+    naming the first bad one): ``solve_default``'s are ``solvers.solve``'s; ``solve_warm``'s are
+    ``model`` (it must load), ``fallback`` (a boolean) and the options of the route it runs
+    (``auto`` with the fallback, else ``indirect``: an unknown key, e.g. a typo, is refused, not
+    ignored)."""
+    import solvers
+    opts = dict(options)
+    if solve_fn == WARM_SOLVE_FN:
+        fallback = opts.pop("fallback", False)
+        if not isinstance(fallback, bool):
+            raise ValueError(f"fallback: expected true or false, got {fallback!r}")
+        model = opts.pop("model", None)
+        from solvers.warmstart import resolve
+        try:
+            resolve(model or "default")
+        except (OSError, ValueError) as e:
+            raise ValueError(f"model: {e}") from None
+        method = "auto" if fallback else "indirect"
+    else:
+        method = opts.pop("method", "auto")
+    for key in ("warm_start", "guess"):
+        opts.pop(key, None)
+    solvers.check_options(method, **opts)
 
 
 def problem_for(spec: GenerationSpec, index: int):
@@ -214,7 +243,7 @@ def solve_task(spec: GenerationSpec, index: int, solve_fn: Optional[Callable] = 
     pkg, commit = solver_version()
     rec = {k: None for k in RECORD_FIELDS}
     rec.update(index=int(index), family=spec.family, seed=int(spec.seed), solve_fn=spec.solve_fn,
-               solver_version=pkg, solver_commit=commit)
+               solve_options=spec.solve_options, solver_version=pkg, solver_commit=commit)
     stage = "sampling"
     try:
         prob = problem_for(spec, index)
@@ -265,6 +294,8 @@ class Summary:
     wall_time_s: float = 0.0
     truncated_bytes: int = 0    # partial last line cut away on open
     interrupted: bool = False
+    signal: Optional[int] = None  # the signal that stopped the run (SIGINT, SIGTERM), if one did
+    route_note: str = ""         # how this run's route differs from the one the file began with
     lost: list = field(default_factory=list)      # indices whose worker died (not recorded)
     status_counts: dict = field(default_factory=dict)
 
@@ -296,6 +327,53 @@ class _Progress:
 
     def close(self):
         self.bar.close()
+
+
+class _StopSignals:
+    """SIGINT and SIGTERM in the parent of a run: a flag, and ``KeyboardInterrupt``.
+
+    A solve in this process runs inside CasADi/IPOPT and numba, which can swallow the
+    ``KeyboardInterrupt`` (IPOPT reports ``NonIpopt_Exception_Thrown``, numba a ``SystemError``):
+    the solve then ends as a failure record that a restart never retries, and the run went on
+    with exit 0. The flag says that the record of a solve in progress is not kept and the run
+    stops (a restart solves that index again). SIGTERM (``timeout``, a scheduler) takes the same
+    path, so that the pool is shut down rather than left running. Only in the main thread (where
+    signal handlers live); elsewhere a no-op."""
+
+    def __init__(self):
+        self.signum = None
+        self._old = {}
+
+    @property
+    def hit(self) -> bool:
+        return self.signum is not None
+
+    def _handler(self, signum, frame):
+        self.signum = signum
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+def _worker_init(parent_pid):
+    """A pool worker ends with its parent: killed (SIGKILL, SIGTERM) parents had left their
+    workers solving, ~290 MB each, for good (Linux: ``PR_SET_PDEATHSIG``)."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM))    # PR_SET_PDEATHSIG = 1
+    except Exception:      # not Linux: the workers end when their current task does
+        pass
+    if os.getppid() != parent_pid:      # the parent died before the call above
+        os._exit(1)
 
 
 def _default_workers():
@@ -338,22 +416,29 @@ def generate(spec: GenerationSpec, path, workers: Optional[int] = None, backend:
         bar = _Progress(spec.n, done_in_range, ok_in_range, progress and spec.n > 0,
                         desc=f"slew generate {spec.family}")
 
+        summary.route_note = _route_note(writer.meta, spec, solve_fn)
+
         def write(rec):
+            if stop.hit:     # a solve the signal cut short: not kept (a restart solves it again)
+                raise KeyboardInterrupt
             writer.append(rec)
             summary.written += 1
             bar.update(rec.get("success") is True)
 
+        stop = _StopSignals()
         try:
-            if todo:
-                if backend == "ray":
-                    _run_ray(spec, todo, write, workers, address, solve_fn, window, summary)
-                elif (workers or _default_workers()) == 1 or len(todo) == 1:
-                    for i in todo:
-                        write(solve_task(spec, i, solve_fn))
-                else:
-                    _run_local(spec, todo, write, workers or _default_workers(), solve_fn, window, summary)
+            with stop:
+                if todo:
+                    if backend == "ray":
+                        _run_ray(spec, todo, write, workers, address, solve_fn, window, summary)
+                    elif (workers or _default_workers()) == 1 or len(todo) == 1:
+                        for i in todo:
+                            write(solve_task(spec, i, solve_fn))
+                    else:
+                        _run_local(spec, todo, write, workers or _default_workers(), solve_fn, window, summary)
         except KeyboardInterrupt:
             summary.interrupted = True
+            summary.signal = stop.signum if stop.hit else int(signal.SIGINT)
         finally:
             bar.close()
         done = writer.done
@@ -362,6 +447,19 @@ def generate(spec: GenerationSpec, path, workers: Optional[int] = None, backend:
     summary.failures = sum(1 for i in range(spec.n) if done.get(i) is False)
     summary.wall_time_s = time.perf_counter() - t_start
     return summary
+
+
+def _route_note(meta, spec, solve_fn) -> str:
+    """What differs between the route the file began with (its metadata) and this run's: each
+    record names its own ``solve_fn`` and ``solve_options``; a continuation may change them (the
+    shipped data's seed 14 did), but should say so."""
+    if solve_fn is not None or not isinstance(meta, dict):
+        return ""
+    diffs = []
+    for key, now in (("solve_fn", spec.solve_fn), ("solve_options", clean_json(spec.solve_options))):
+        if key in meta and meta[key] != now:
+            diffs.append(f"{key} {json.dumps(now)} (the file began with {json.dumps(meta[key])})")
+    return "; ".join(diffs)
 
 
 def _run_local(spec, todo, write, workers, solve_fn, window, summary, max_pool_restarts=3):
@@ -381,7 +479,8 @@ def _run_local(spec, todo, write, workers, solve_fn, window, summary, max_pool_r
     queue = list(reversed(todo))          # pop() takes the lowest index first
     restarts = 0
     while queue:
-        ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(os.getpid(),))
         pending = {}
         lost = []
         try:
@@ -401,6 +500,10 @@ def _run_local(spec, todo, write, workers, solve_fn, window, summary, max_pool_r
                         continue
                     write(rec)
         except BaseException:
+            # (an interrupt: the solves in flight are not recorded, so their workers are ended
+            # now; left alone, the interpreter's exit would wait for each to finish its solve)
+            for proc in list((getattr(ex, "_processes", None) or {}).values()):
+                proc.terminate()
             ex.shutdown(wait=False, cancel_futures=True)
             raise
         ex.shutdown(wait=not lost, cancel_futures=bool(lost))
