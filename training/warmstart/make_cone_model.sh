@@ -2,10 +2,10 @@
 # The exact commands that made the pointing-cones warm-start model
 # (solvers/warmstart/models/pointing-cones.npz). Problems are deterministic in (family, seed,
 # index); a stopped run continues with the same command. Which problems get exact answers
-# depends on the solver's code and on machine load (time budgets). The shipped data were solved
-# at the session-25 code (records name their solver_commit), where 62 % of seed 31 came out exact;
-# later solver fixes (the switch-time touch formulation) give about 81 % (docs/DATASET.md), so a
-# rerun today gives more exact training solutions and a different model, not the shipped one.
+# depends on the solver's code and on machine load (time budgets). Seed 31 was solved first, when
+# 62 % came out exact; seeds 32 and 33 after later solver fixes, 81 % (docs/DATASET.md; records
+# name their solver_commit). A rerun of step 1 today gives about 81 % on seed 31 too: more exact
+# training solutions and a different model, not the shipped one.
 # On 2 cores: about 55 min (1), 50 min (2), 1 min (3), 5 min (4).
 set -euo pipefail
 mkdir -p runs/data runs
