@@ -41,6 +41,8 @@ N_GRID = 16000     # per-axis (compiled sweep, ~20 ms): within ~4e-8 of the cont
 # continuous profile with an active rate limit)
 N_GRID_PNORM_GYRO = 4000
 N_DENSE = 2000
+# the verification's RK4 replay takes at least this many steps in all
+REPLAY_MIN_STEPS = 4000
 # relative margin below the grid eigenaxis time (n_grid = 1000) under which an answer is faster
 # than the eigenaxis slew without planning that slew: on 1,200 problems the grid time was at most
 # 1.8e-5 above the slew's (``eigenaxis_answer``); a session-32 audit found up to 4.8e-4 above the
@@ -152,9 +154,12 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     # verification: replay, torque at both ends of every step, rate limit
     from .core.control_replay import replay_eigenaxis_profile
     x0 = np.concatenate([q0, np.zeros(3)])
+    # RK4 steps a piece: 4, or more on a coarse profile (its error, ~(steps)⁻⁴, had failed the
+    # 1e-8 boundary check at n_grid ≤ 6 with 4 a piece, on a profile that is exact)
+    substeps = max(4, -(-REPLAY_MIN_STEPS // (t.size - 1)))
     xf = replay_eigenaxis_profile(x0, np.ascontiguousarray(t, float), np.ascontiguousarray(rate, float),
                                   np.ascontiguousarray(acc, float), np.ascontiguousarray(a, float),
-                                  np.ascontiguousarray(c, float), J, 4)
+                                  np.ascontiguousarray(c, float), J, substeps)
     qT = xf[0:4] / np.linalg.norm(xf[0:4])
     att = AttitudeBVP(target.replace(cones=())).pointing_error(qT) if pointing else float(qerror_angle(qT, prob.qf))
     rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))

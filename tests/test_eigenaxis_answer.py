@@ -143,3 +143,17 @@ def test_an_extremal_near_the_eigenaxis_time_is_judged_on_the_fine_grid():
     s = solvers.solve(p, method="indirect", warm_start=None)
     assert s.status == 4 and s.tf > coarse
     assert s.baseline_tf == pytest.approx(fine, rel=1e-13) and s.baseline_tf != pytest.approx(coarse, rel=1e-10)
+
+
+@pytest.mark.parametrize("n_grid", [2, 4, 7])
+def test_a_coarse_profile_is_verified_too(n_grid):
+    # the replay took 4 RK4 steps a piece: on 2-6 pieces its own error (up to 5.5e-6 rad) failed
+    # the 1e-8 boundary check of a profile that is exact; now at least 4,000 steps in all
+    from solvers.eigenaxis_answer import eigenaxis_answer
+    p = SlewProblem([0.5, 0.8, 1.0], qf=[0.7, 0.5, 0.4, 0.31622776601683794])
+    sol = eigenaxis_answer(p, n_grid=n_grid)
+    assert sol.success, sol.message
+    assert sol.verification["boundary_attitude_error"]["value"] < 1e-10
+    assert sol.tf >= eigenaxis_answer(p).tf * (1 - 1e-12)       # a coarser profile is never faster
+    att, rate = _fly(sol, p, pieces=64)
+    assert att < 1e-6 and rate < 1e-6
