@@ -126,10 +126,9 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     import torch
     torch.set_num_threads(1)
     torch.manual_seed(seed)
-    cfg = load_config(config, overrides)
+    # epochs as an override, so that load_config's check (≥ 1) applies to it before the data load
+    cfg = load_config(config, dict(overrides or {}, **({} if epochs is None else {"epochs": int(epochs)})))
     out = os.fspath(out)
-    if epochs is not None:
-        cfg["epochs"] = int(epochs)
     os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     data_paths = [os.fspath(p) for p in data_paths]
     arrays = _arrays(data_paths, cfg)
