@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import glob
+import hashlib
 import json
 import math
 import os
@@ -129,8 +130,11 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     # epochs as an override, so that load_config's check (≥ 1) applies to it before the data load
     cfg = load_config(config, dict(overrides or {}, **({} if epochs is None else {"epochs": int(epochs)})))
     out = os.fspath(out)
-    os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     data_paths = [os.fspath(p) for p in data_paths]
+    identity = run_identity(cfg, seed, data_paths)
+    # before the data load: a refused --resume is known at once
+    resumed = resume_checkpoint(out, identity, torch) if resume else None
+    os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     arrays = _arrays(data_paths, cfg)
     N = arrays["X"].shape[0]
     if N < 10:
@@ -147,11 +151,14 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     lr0, lr1 = float(cfg["learning_rate"]), float(cfg.get("lr_final", cfg["learning_rate"]))
     start_epoch = 0
     log_rows = []
-    ckpts = sorted(glob.glob(os.path.join(out, "checkpoints", "epoch_*.pt")))
-    if resume and ckpts:
-        st = torch.load(ckpts[-1], weights_only=False)
-        net.load_state_dict(st["net"])
-        opt.load_state_dict(st["opt"])
+    if resumed is not None:
+        path, st = resumed
+        try:
+            net.load_state_dict(st["net"])
+            opt.load_state_dict(st["opt"])
+        except (RuntimeError, ValueError, KeyError) as e:   # the identity matched, the file did not
+            raise ValueError(f"--resume: {path}: does not fit this run's network "
+                             f"({str(e).strip().splitlines()[-1][:160]}); start afresh with another --out") from None
         torch.set_rng_state(st["rng"])
         start_epoch = int(st["epoch"])
         log_rows = st["log"]
@@ -191,8 +198,8 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
             bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
                             struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
         if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
-            torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
-                        "epoch": epoch + 1, "log": log_rows}, os.path.join(out, "checkpoints", f"epoch_{epoch + 1:04d}.pt"))
+            _save_checkpoint(torch, out, {"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
+                                          "epoch": epoch + 1, "log": log_rows, "identity": identity})
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - t0
@@ -219,6 +226,83 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     return summary
+
+
+def file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_identity(cfg, seed, data_paths) -> dict:
+    """What makes two runs the same run: the resolved config (epochs included: the learning-rate
+    schedule depends on it), the seed, and the data files (where they are, and their content)."""
+    # checkpoint_every only says when to save: a resume may change it
+    cfg = {k: v for k, v in cfg.items() if k != "checkpoint_every"}
+    return {"config": json.loads(json.dumps(cfg, default=str)), "seed": int(seed),
+            "data": [os.path.realpath(p) for p in data_paths],
+            "data_sha256": [file_sha256(p) for p in data_paths]}
+
+
+def identity_differences(saved, now, epoch) -> list:
+    """The options in which the run of a checkpoint at ``epoch`` (identity ``saved``) differs
+    from this one (``now``), each with the two values."""
+    if not saved:
+        return ["all of them (a checkpoint written before checkpoints recorded their run)"]
+    diffs = []
+    if saved["data"] != now["data"]:
+        diffs.append(f"--data ({', '.join(map(os.path.basename, saved['data']))}; now "
+                     f"{', '.join(map(os.path.basename, now['data']))})")
+    elif saved["data_sha256"] != now["data_sha256"]:
+        changed = [os.path.basename(p) for p, a, b in zip(now["data"], saved["data_sha256"], now["data_sha256"]) if a != b]
+        diffs.append(f"--data (the content of {', '.join(changed)} changed since)")
+    if saved["seed"] != now["seed"]:
+        diffs.append(f"--seed ({saved['seed']}; now {now['seed']})")
+    c0, c1 = saved["config"], now["config"]
+    if c0.get("epochs") != c1.get("epochs"):
+        beyond = f", already at epoch {epoch}, beyond" if epoch > int(c1["epochs"]) else ""
+        diffs.append(f"--epochs (a {c0.get('epochs')}-epoch run{beyond}; now {c1.get('epochs')})")
+    keys = sorted(k for k in set(c0) | set(c1) if k != "epochs" and c0.get(k) != c1.get(k))
+    if keys:
+        diffs.append(f"--config ({', '.join(keys)})")
+    return diffs
+
+
+def resume_checkpoint(out, identity, torch):
+    """``(path, state)`` of the latest checkpoint in ``out`` written by this run (same
+    identity), ``None`` if there is no checkpoint at all. Checkpoints of other runs (a fresh run
+    into the same ``--out`` leaves them) are never resumed: if none is of this run, an error
+    names what differs from the latest one."""
+    where = os.path.join(out, "checkpoints")
+    other, unreadable = None, []
+    for path in sorted(glob.glob(os.path.join(where, "epoch_*.pt")), reverse=True):
+        try:
+            st = torch.load(path, weights_only=False)
+        except Exception as e:   # noqa: BLE001 - a torn or foreign file is not this run's checkpoint
+            unreadable.append(f"{os.path.basename(path)}: {type(e).__name__}")
+            continue
+        if isinstance(st, dict) and st.get("identity") == identity:
+            return path, st
+        other = other or (path, st if isinstance(st, dict) else {})
+    if other is None and not unreadable:
+        return None
+    if other is None:
+        raise ValueError(f"--resume: no checkpoint in {where} can be read ({'; '.join(unreadable)}); "
+                         f"start afresh with another --out")
+    path, st = other
+    diffs = identity_differences(st.get("identity"), identity, int(st.get("epoch", 0)))
+    raise ValueError(f"--resume: no checkpoint in {where} is of this run; the latest ({os.path.basename(path)}) "
+                     f"differs in {'; '.join(diffs)}. Give that run's options, or another --out")
+
+
+def _save_checkpoint(torch, out, state):
+    """Write to a temporary name, then rename: a run stopped mid-write keeps its last checkpoint."""
+    path = os.path.join(out, "checkpoints", f"epoch_{state['epoch']:04d}.pt")
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
 
 
 def table_path(model_path):
