@@ -6,6 +6,7 @@ import json
 import os
 import shutil
 import signal
+import sys
 import threading
 
 
@@ -32,10 +33,19 @@ def run(args) -> int:
             raise FileNotFoundError(f"--data: no such file: {path}")
     if args.export:
         check_export(args.export)
-    s = train(args.data, args.out, config=args.config, seed=args.seed, epochs=args.epochs, resume=args.resume,
-              progress_bar=not args.no_progress)
-    if args.export:
-        publish(export_copies(s, args.export))
+    stage = "before the training started: the checkpoints in --out are as they were"
+    try:
+        s = train(args.data, args.out, config=args.config, seed=args.seed, epochs=args.epochs, resume=args.resume,
+                  progress_bar=not args.no_progress)
+        if args.export:
+            stage = f"while exporting: the files at --export {args.export} are as they were"
+            publish(export_copies(s, args.export))
+    except KeyboardInterrupt as e:
+        # Ctrl-C: one line saying what was kept, no traceback, 130 as for slew generate
+        from training.warmstart.train import TrainingInterrupted
+        print(f"slew train: interrupted {e.args[0] if isinstance(e, TrainingInterrupted) else stage}",
+              file=sys.stderr)
+        return 130
     print(json.dumps({k: s[k] for k in ("n_exact_solutions", "n_train", "n_val", "epochs", "train_wall_time_s", "model")}))
     print("validation:", json.dumps(s["val_metrics"]))
     return 0

@@ -15,6 +15,7 @@ seed: one torch thread, seeded shuffles and initialisation.
 """
 from __future__ import annotations
 
+import copy
 import csv
 import glob
 import hashlib
@@ -171,61 +172,96 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         from tqdm import tqdm
         bar = tqdm(total=E, initial=start_epoch, desc="slew train", unit="epoch")
     t0 = time.perf_counter()
-    for epoch in range(start_epoch, E):
-        frac = epoch / max(1, E - 1)
-        lr = lr1 + 0.5 * (lr0 - lr1) * (1 + math.cos(math.pi * frac)) if cfg.get("lr_schedule") == "cosine" else lr0
-        for g in opt.param_groups:
-            g["lr"] = lr
-        net.train()
-        perm = torch.randperm(n_tr)
-        tot = 0.0
-        for b in range(0, n_tr, bs):
-            i = perm[b:b + bs]
-            batch = {k: v[i] for k, v in train_t.items()}
-            loss, _, _ = _losses(net(batch["X"]), batch, cfg, torch)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            tot += float(loss.detach()) * len(i)
-        net.eval()
-        with torch.no_grad():
-            vl, parts, met = _losses(net(val_t["X"]), val_t, cfg, torch) if len(va_idx) else (torch.tensor(math.nan), {}, {})
-        row = {"epoch": epoch + 1, "lr": lr, "train_loss": tot / n_tr, "val_loss": float(vl),
-               **{f"val_{k}": v for k, v in parts.items()}, **{f"val_{k}": v for k, v in met.items()}}
-        log_rows.append(row)
+    saved = start_epoch     # the last epoch with a checkpoint on disk
+    last = None             # the state at the end of the last finished epoch, for a Ctrl-C
+    try:
+        for epoch in range(start_epoch, E):
+            frac = epoch / max(1, E - 1)
+            lr = lr1 + 0.5 * (lr0 - lr1) * (1 + math.cos(math.pi * frac)) if cfg.get("lr_schedule") == "cosine" else lr0
+            for g in opt.param_groups:
+                g["lr"] = lr
+            net.train()
+            perm = torch.randperm(n_tr)
+            tot = 0.0
+            for b in range(0, n_tr, bs):
+                i = perm[b:b + bs]
+                batch = {k: v[i] for k, v in train_t.items()}
+                loss, _, _ = _losses(net(batch["X"]), batch, cfg, torch)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                tot += float(loss.detach()) * len(i)
+            net.eval()
+            with torch.no_grad():
+                vl, parts, met = _losses(net(val_t["X"]), val_t, cfg, torch) if len(va_idx) else (torch.tensor(math.nan), {}, {})
+            row = {"epoch": epoch + 1, "lr": lr, "train_loss": tot / n_tr, "val_loss": float(vl),
+                   **{f"val_{k}": v for k, v in parts.items()}, **{f"val_{k}": v for k, v in met.items()}}
+            log_rows.append(row)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
+                                struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
+            # a copy: the next epoch changes the live tensors, and a Ctrl-C in it must save this state
+            last = copy.deepcopy({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
+                                  "epoch": epoch + 1, "log": list(log_rows), "identity": identity})
+            if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
+                _save_checkpoint(torch, out, last)
+                saved = epoch + 1
+    except KeyboardInterrupt:
         if bar is not None:
-            bar.update(1)
-            bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
-                            struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
-        if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
-            _save_checkpoint(torch, out, {"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
-                                          "epoch": epoch + 1, "log": log_rows, "identity": identity})
+            bar.close()
+        raise TrainingInterrupted(_keep_on_interrupt(out, torch, log_rows, last, saved, E)) from None
     if bar is not None:
         bar.close()
-    wall = time.perf_counter() - t0
-    _write_log(out, log_rows)
-    final = log_rows[-1]
-    card_training = {
-        "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
-        "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
-        "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
-        "torch": torch.__version__, "python": platform.python_version(),
-        "val_metrics": {k[4:]: final[k] for k in final if k.startswith("val_")},
-    }
-    path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
-    summary = dict(card_training, model=path, run_dir=out)
-    if _is_cones(cfg):
-        # the shipped pointing-cones warm start tries the nearest solved problems first
-        # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
-        summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
-    else:
-        # the shipped full-attitude warm start tries them after the network's structured
-        # candidates (solvers.warmstart.attitude_ensemble)
-        summary["table"] = export_attitude_table(data_paths, table_path(path), int(cfg["max_switches"]),
-                                                 cfg.get("domain", {}))
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=1)
+    try:
+        wall = time.perf_counter() - t0
+        _write_log(out, log_rows)
+        final = log_rows[-1]
+        card_training = {
+            "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
+            "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
+            "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
+            "torch": torch.__version__, "python": platform.python_version(),
+            "val_metrics": {k[4:]: final[k] for k in final if k.startswith("val_")},
+        }
+        path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
+        summary = dict(card_training, model=path, run_dir=out)
+        if _is_cones(cfg):
+            # the shipped pointing-cones warm start tries the nearest solved problems first
+            # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
+            summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
+        else:
+            # the shipped full-attitude warm start tries them after the network's structured
+            # candidates (solvers.warmstart.attitude_ensemble)
+            summary["table"] = export_attitude_table(data_paths, table_path(path), int(cfg["max_switches"]),
+                                                     cfg.get("domain", {}))
+        with open(os.path.join(out, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=1)
+    except KeyboardInterrupt:
+        # the last checkpoint holds the finished training: a resume only writes the files again
+        raise TrainingInterrupted(f"after the last epoch ({E}), while writing the model into {out}: "
+                                  f"--resume writes it again from checkpoints/epoch_{E:04d}.pt") from None
     return summary
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during the epochs or while the run directory is written; ``args[0]`` says what
+    was kept."""
+
+
+def _keep_on_interrupt(out, torch, log_rows, last, saved, E) -> str:
+    """After a Ctrl-C: ``log.csv`` of the epochs done and a checkpoint of the last finished
+    epoch (the periodic ones can be up to ``checkpoint_every - 1`` epochs behind), which
+    ``--resume`` continues as if nothing had happened. Returns what was kept, in words."""
+    if log_rows:
+        _write_log(out, log_rows)
+    if last is not None and last["epoch"] > saved:
+        _save_checkpoint(torch, out, last)
+        saved = last["epoch"]
+    if not saved:
+        return f"in epoch 1 of {E}: no epoch finished, no checkpoint written"
+    return (f"after epoch {saved} of {E}: {os.path.join(out, 'log.csv')} and "
+            f"{os.path.join(out, 'checkpoints', f'epoch_{saved:04d}.pt')} kept; --resume continues")
 
 
 def file_sha256(path) -> str:
@@ -301,8 +337,12 @@ def _save_checkpoint(torch, out, state):
     """Write to a temporary name, then rename: a run stopped mid-write keeps its last checkpoint."""
     path = os.path.join(out, "checkpoints", f"epoch_{state['epoch']:04d}.pt")
     tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    try:
+        torch.save(state, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 def table_path(model_path):
