@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 
@@ -184,6 +185,24 @@ def check_domain(paths, domain: dict) -> None:
         field, what = bad[0]
         raise ValueError(f"--data: {field}: {what}: the model would claim problems it never saw; give data "
                          f"that cover the config's domain, or narrow the domain")
+
+
+def check_distinct(paths) -> None:
+    """Refuse two data files that hold the same problems: the same file twice, or two files of
+    one family, seed and distribution (problem ``index`` is drawn from exactly these, so their
+    records pair up index by index). The split would put one copy of a problem in training and
+    the other in validation, and the validation metrics would flatter the model."""
+    seen = {}
+    for path in paths:
+        meta = file_meta(path)
+        key = json.dumps([meta.get("family"), meta.get("seed"), meta.get("distribution")], sort_keys=True)
+        if key in seen:
+            same = "is given twice" if os.path.realpath(seen[key]) == os.path.realpath(path) else \
+                f"and {path} hold the same problems (family {meta.get('family')}, seed {meta.get('seed')}, " \
+                f"one distribution)"
+            raise ValueError(f"--data: {seen[key]} {same}: their rows would be in both the training and the "
+                             f"validation split; give each once")
+        seen[key] = path
 
 
 def training_arrays(paths, max_switches: int = 5, family=None) -> dict:

@@ -28,7 +28,7 @@ import time
 import numpy as np
 import yaml
 
-from .data import check_domain, split, training_arrays
+from .data import check_distinct, check_domain, split, training_arrays
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
 
@@ -132,6 +132,7 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     cfg = load_config(config, dict(overrides or {}, **({} if epochs is None else {"epochs": int(epochs)})))
     out = os.fspath(out)
     data_paths = [os.fspath(p) for p in data_paths]
+    check_distinct(data_paths)
     check_domain(data_paths, cfg.get("domain"))
     identity = run_identity(cfg, seed, data_paths)
     # before the data load: a refused --resume is known at once
