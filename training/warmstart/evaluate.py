@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
@@ -251,8 +252,14 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
     warm_budget = float(warm_budget)
     from solvers import warmstart
+    check_train_data(train_data, family)
     model = _model(model_path)
     n_covered = check_coverage(model, model_path, family, n, seed)
+    overlap = held_out_in_training(family, seed, train_data, model)
+    if overlap:
+        print(f"slew evaluate: warning: the held-out problems (--family {family}, --seed {seed}) are the training "
+              f"problems of {', '.join(overlap)} (same family, seed and distribution); give another --seed",
+              file=sys.stderr)
     os.makedirs(out, exist_ok=True)
     nn_path = None
     if train_data:
@@ -302,7 +309,7 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         summary["network_measures"] = "canonical form, network and the table's nearest query"
     else:
         summary["network_measures"] = "canonical form + network"
-    summary.update(family=family, n=n, seed=seed, model_covers=n_covered, baseline_n=min(baseline_n, n), budget_s=budget,
+    summary.update(family=family, n=n, seed=seed, model_covers=n_covered, held_out_in_training=overlap, baseline_n=min(baseline_n, n), budget_s=budget,
                    warm_budget_s=warm_budget,
                    model=getattr(model, "path", None) or getattr(model, "name", None) or model_path
                    or warmstart.DEFAULT_MODEL_FILE,
@@ -313,6 +320,44 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         f.write(markdown(summary))
     plot(rows, os.path.join(out, "evaluation.png"))
     return summary
+
+
+def check_train_data(train_data, family) -> None:
+    """``--train-data`` files are datasets of the held-out family (another family's records have
+    no canonical form of this one: the error named neither the option nor the file)."""
+    from .data import file_meta
+    for path in train_data or []:
+        try:
+            meta = file_meta(path)
+        except ValueError as e:
+            raise ValueError(f"--train-data: {e}") from None
+        if meta.get("family") != family:
+            raise ValueError(f"--train-data: {path}: family {meta.get('family')!r}, not the held-out problems' "
+                             f"--family {family!r}")
+
+
+def held_out_in_training(family, seed, train_data=None, model=None) -> list:
+    """The ``--train-data`` files, and the data files the model's card records (``slew train``
+    records them since session 35), whose problems are the held-out ones: the same family, seed
+    and distribution draw the same problems, index by index."""
+    from training.generate import GenerationSpec
+    from .data import file_meta
+    dist = GenerationSpec(family, seed=seed).distribution_dict()
+
+    def same(fam, s, d):
+        # on the fields both state: a file written before a field was added still counts
+        return (fam == family and s == int(seed) and isinstance(d, dict)
+                and all(d[k] == dist[k] for k in d.keys() & dist.keys()))
+    hits = []
+    for path in train_data or []:
+        meta = file_meta(path)
+        if same(meta.get("family"), meta.get("seed"), meta.get("distribution")):
+            hits.append(os.fspath(path))
+    card = getattr(model, "card", None) or {}
+    for d in (card.get("training") or {}).get("data_files") or []:
+        if same(d.get("family"), d.get("seed"), d.get("distribution")):
+            hits.append(f"{d.get('file')} (in the model's card)")
+    return hits
 
 
 def check_coverage(model, model_path, family, n, seed) -> int:
@@ -402,6 +447,9 @@ def markdown(s) -> str:
         at = f"{100 * r['share_at_best']:.1f} %" if r['share_at_best'] == r['share_at_best'] else "–"
         lines.append(f"| {g} | {r['n']} | {r.get('not_covered', 0)} | {conv} | {nit} | {1e3 * r['time_median_s']:.1f} ms | "
                      f"{1e3 * r['time_p95_s']:.1f} ms | {1e3 * r['time_median_converged_s']:.1f} ms | {gap} | {at} |")
+    if s.get("held_out_in_training"):
+        lines += ["", f"**Warning**: the held-out problems are training problems of "
+                      f"{', '.join(s['held_out_in_training'])} (same family, seed and distribution)."]
     covers = s.get("model_covers", s["n"])
     if covers < s["n"]:
         lines += ["", f"The model covers {covers} of the {s['n']} problems ({100 * covers / s['n']:.1f} %): on the other "

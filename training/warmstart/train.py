@@ -28,7 +28,7 @@ import time
 import numpy as np
 import yaml
 
-from .data import check_distinct, check_domain, split, training_arrays
+from .data import check_distinct, check_domain, file_meta, split, training_arrays
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
 
@@ -221,6 +221,7 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         final = log_rows[-1]
         card_training = {
             "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
+            "data_files": data_files(data_paths, identity["data_sha256"]),
             "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
             "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
             "torch": torch.__version__, "python": platform.python_version(),
@@ -244,6 +245,18 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         raise TrainingInterrupted(f"after the last epoch ({E}), while writing the model into {out}: "
                                   f"--resume writes it again from checkpoints/epoch_{E:04d}.pt") from None
     return summary
+
+
+def data_files(data_paths, sha256) -> list:
+    """What the card records of each data file: its name, checksum, and the family, seed and
+    distribution its problems are drawn from (``slew evaluate`` warns when its held-out problems
+    are these)."""
+    out = []
+    for path, sha in zip(data_paths, sha256):
+        meta = file_meta(path)
+        out.append({"file": os.path.basename(path), "sha256": sha, "family": meta.get("family"),
+                    "seed": meta.get("seed"), "distribution": meta.get("distribution")})
+    return out
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -407,7 +420,7 @@ def write_card_md(card, path):
              f"- format: {card.get('format')} v{card.get('format_version')}, sha256 of the weights `{card.get('sha256')}`",
              f"- network: MLP {card.get('hidden')} ({card.get('activation')}), {card.get('max_switches')} switch slots per axis",
              f"- covers (domain): `{json.dumps(card.get('domain'))}`",
-             f"- training family: {t.get('family')}; data files: {', '.join(t.get('data', []))}",
+             f"- training family: {t.get('family')}; data files: {_data_names(t)}",
              f"- dataset: {t.get('n_records')} records, {t.get('n_exact_solutions')} exact solutions "
              f"({t.get('n_train')} train / {t.get('n_val')} validation)",
              f"- epochs {t.get('epochs')}, seed {t.get('seed')}, training wall time {t.get('train_wall_time_s')} s, torch {t.get('torch')}",
@@ -419,6 +432,14 @@ def write_card_md(card, path):
     del n_params
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
+
+
+def _data_names(training) -> str:
+    """The data files, with their seeds where the card records them."""
+    files = training.get("data_files")
+    if not files:
+        return ", ".join(training.get("data", []))
+    return ", ".join(f"{d['file']} (seed {d['seed']}, sha256 {str(d['sha256'])[:12]}…)" for d in files)
 
 
 def _write_log(out, rows):
