@@ -309,8 +309,8 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         summary["network_measures"] = "canonical form, network and the table's nearest query"
     else:
         summary["network_measures"] = "canonical form + network"
-    summary.update(family=family, n=n, seed=seed, model_covers=n_covered, held_out_in_training=overlap, baseline_n=min(baseline_n, n), budget_s=budget,
-                   warm_budget_s=warm_budget,
+    summary.update(family=family, n=n, seed=seed, model_covers=n_covered, held_out_in_training=overlap,
+                   baseline_n=min(baseline_n, n), budget_s=budget, warm_budget_s=warm_budget,
                    model=getattr(model, "path", None) or getattr(model, "name", None) or model_path
                    or warmstart.DEFAULT_MODEL_FILE,
                    train_data=[os.fspath(p) for p in (train_data or [])], workers=workers)
@@ -478,9 +478,16 @@ def markdown(s) -> str:
     if none:
         lines.append(f"Not applicable to this family (the guess or route rejects every problem): {', '.join(none)}.")
     if "nit_ratio_eigenaxis_over_learned" in s:
+        ratio = _two_digits(s["time_ratio_eigenaxis_over_learned"])
         lines.append(f"On the problems both solved: the eigenaxis route took {s['nit_ratio_eigenaxis_over_learned']:.1f}× the "
-                     f"Newton iterations of the learned guess (mean) and {s['time_ratio_eigenaxis_over_learned']:.0f}× its time (median ratio).")
+                     f"Newton iterations of the learned guess (mean) and {ratio}× its time (median ratio).")
     return "\n".join(lines) + "\n"
+
+
+def _two_digits(x) -> str:
+    """``x`` to 2 significant digits, no exponent: 1.30 → "1.3", 0.4 → "0.40", 134 → "130"
+    (``:.0f`` had printed 1.30 as "1" and anything below 0.5 as "0")."""
+    return np.format_float_positional(float(x), precision=2, unique=False, fractional=False, trim="k").rstrip(".")
 
 
 def plot(rows, path):

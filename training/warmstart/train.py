@@ -8,10 +8,13 @@ counts per axis (3 × (K+1) logits, cross-entropy) and switch instants as fracti
 ``T`` (3 × K sigmoids, MSE on the slots a problem uses). Loss weights, sizes and the
 schedule come from a YAML config (``configs/full-attitude.yaml``).
 
-Run directory: ``config.yaml`` (the resolved config), ``log.csv`` (per epoch: losses and
-validation metrics), ``loss.png``, ``checkpoints/epoch_NNNN.pt`` (resumable with
-``--resume``), ``model.npz`` (the export) and ``MODEL_CARD.md``. Reproducible from the
-seed: one torch thread, seeded shuffles and initialisation.
+Run directory: ``config.yaml`` (the resolved config, with the seed and the data files),
+``log.csv`` (per epoch: losses and validation metrics), ``loss.png``,
+``checkpoints/epoch_NNNN.pt`` (each with its run's identity: ``--resume`` continues only
+the same run), ``model.npz`` (the export), ``model.md`` (its card, readable),
+``model.nn.npz`` (the neighbour table of the same exact solutions) and ``summary.json``
+(the card's training part, the paths written). Reproducible from the seed: one torch
+thread, seeded split, shuffles and initialisation.
 """
 from __future__ import annotations
 
@@ -387,7 +390,7 @@ def export_cone_table(data_paths, path, max_switches, k=4):
 
 
 def export(net, cfg, x_mean, x_std, training_info, path):
-    """Write the numpy model file (and ``MODEL_CARD.md`` next to it)."""
+    """Write the numpy model file ``NAME.npz`` and its readable card ``NAME.md`` next to it."""
     from solvers.warmstart.model import WarmStartModel, output_layout
     import solvers
     lin = [m for m in net if hasattr(m, "weight")]
