@@ -17,7 +17,8 @@ def add_arguments(p):
     p.add_argument("--out", "-o", default="runs/warmstart", help="run directory (default runs/warmstart)")
     p.add_argument("--seed", type=int, default=0, help="seed of the split, the initialisation and the shuffles")
     p.add_argument("--epochs", type=int, default=None, help="override the config's epochs")
-    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--resume", action="store_true",
+                   help="continue from the last checkpoint of this run in --out (same config, epochs, seed and data)")
     p.add_argument("--export", default=None, metavar="MODEL.npz",
                    help="also write the exported model here (e.g. solvers/warmstart/models/full-attitude.npz)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
