@@ -67,3 +67,20 @@ def test_an_interrupted_export_leaves_the_old_files_together(tmp_path, monkeypat
     assert code == 130
     assert {name: (target.parent / name).read_bytes() for name in old} == old
     assert sorted(os.listdir(target.parent)) == sorted(old)
+
+
+@pytest.mark.parametrize("make, argv, needle", [
+    (None, ["--config", "nope.yaml"], "--config: no such file: "),
+    ("file", ["--out", "a_file"], "--out: "),
+    ("notes", ["--data", "notes.txt"], "--data: "),
+])
+def test_other_bad_options_are_named(tmp_path, capsys, monkeypatch, make, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a_file").write_text("keep me")
+    (tmp_path / "notes.txt").write_text("my notes\n")
+    args = {"--data": DATA, "--out": "run"}
+    args.update(dict(zip(argv[::2], argv[1::2])))
+    code = main(["train", "--epochs", "1", "--no-progress"] + [x for kv in args.items() for x in kv])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and err.startswith(f"slew train: error: {needle}"), err
+    assert (tmp_path / "a_file").read_text() == "keep me" and not (tmp_path / "run").exists()

@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 
 from solvers.warmstart import WarmStartModel        # noqa: E402
 from training.cli import main                       # noqa: E402
-from training.warmstart.train import train          # noqa: E402
+from training.warmstart.train import DEFAULT_CONFIG, train          # noqa: E402
 
 DATA = os.path.join(os.path.dirname(__file__), "data", "full-attitude-small.jsonl")
 TINY = {"hidden": [16], "checkpoint_every": 1}
@@ -56,7 +56,7 @@ def finished(tmp_path_factory):
     (["--epochs", "5"], "--epochs (a 3-epoch run; now 5)"),
     (["--epochs", "2"], "--epochs (a 3-epoch run, already at epoch 3, beyond; now 2)"),
     (["--data", "OTHER"], "--data (full-attitude-small.jsonl; now other.jsonl)"),
-    (["--config", "training/warmstart/configs/pointing-cones.yaml"], "--config ("),
+    (["--config", "WIDER"], "--config (hidden)"),      # the state_dict of another shape: no traceback
 ])
 def test_resume_into_another_run_is_refused_naming_what_differs(finished, tmp_path, capsys, change, needle):
     root, other = finished
@@ -64,7 +64,10 @@ def test_resume_into_another_run_is_refused_naming_what_differs(finished, tmp_pa
     shutil.copytree(root / "run", run)
     before = sorted(os.listdir(run / "checkpoints")), (run / "model.npz").read_bytes(), (run / "config.yaml").read_text()
     args = {"--data": DATA, "--seed": "0", "--epochs": "3"}
-    args.update(dict(zip(change[::2], [str(other) if v == "OTHER" else v for v in change[1::2]])))
+    wider = tmp_path / "wider.yaml"
+    wider.write_text(open(DEFAULT_CONFIG).read().replace("hidden: [256, 256, 256]", "hidden: [32]"))
+    subst = {"OTHER": str(other), "WIDER": str(wider)}
+    args.update(dict(zip(change[::2], [subst.get(v, v) for v in change[1::2]])))
     argv = ["train", "--out", str(run), "--resume", "--no-progress"] + [x for kv in args.items() for x in kv]
     code = main(argv)
     err = capsys.readouterr().err
@@ -95,3 +98,18 @@ def test_a_finished_run_resumes_to_the_same_model(finished, tmp_path):
     sha = WarmStartModel.load(run / "model.npz").card["sha256"]
     assert main(["train", "--data", DATA, "--out", str(run), "--epochs", "3", "--resume", "--no-progress"]) == 0
     assert WarmStartModel.load(run / "model.npz").card["sha256"] == sha
+
+
+def test_a_checkpoint_without_an_identity_is_not_resumed(tmp_path, capsys):
+    """A checkpoint written before checkpoints recorded their run cannot be told from another
+    run's: refused, saying so."""
+    import torch
+    run = tmp_path / "run"
+    train([DATA], run, seed=0, epochs=1, progress_bar=False, overrides=TINY)
+    path = run / "checkpoints" / "epoch_0001.pt"
+    st = torch.load(path, weights_only=False)
+    del st["identity"]
+    torch.save(st, path)
+    code = main(["train", "--data", DATA, "--out", str(run), "--epochs", "1", "--resume", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "(epoch_0001.pt) was written before checkpoints recorded their run" in err

@@ -32,6 +32,10 @@ def run(args) -> int:
     for path in args.data:
         if not os.path.exists(path):
             raise FileNotFoundError(f"--data: no such file: {path}")
+    if args.config and not os.path.isfile(args.config):
+        raise FileNotFoundError(f"--config: no such file: {args.config}")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"--out: {args.out!r} exists and is not a directory")
     if args.export:
         check_export(args.export)
     stage = "before the training started: the checkpoints in --out are as they were"

@@ -194,7 +194,10 @@ def check_distinct(paths) -> None:
     the other in validation, and the validation metrics would flatter the model."""
     seen = {}
     for path in paths:
-        meta = file_meta(path)
+        try:
+            meta = file_meta(path)
+        except ValueError as e:      # the first look at --data's files: name the option
+            raise ValueError(f"--data: {e}") from None
         key = json.dumps([meta.get("family"), meta.get("seed"), meta.get("distribution")], sort_keys=True)
         if key in seen:
             same = "is given twice" if os.path.realpath(seen[key]) == os.path.realpath(path) else \

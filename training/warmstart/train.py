@@ -304,8 +304,6 @@ def run_identity(cfg, seed, data_paths) -> dict:
 def identity_differences(saved, now, epoch) -> list:
     """The options in which the run of a checkpoint at ``epoch`` (identity ``saved``) differs
     from this one (``now``), each with the two values."""
-    if not saved:
-        return ["all of them (a checkpoint written before checkpoints recorded their run)"]
     diffs = []
     if saved["data"] != now["data"]:
         diffs.append(f"--data ({', '.join(map(os.path.basename, saved['data']))}; now "
@@ -347,7 +345,11 @@ def resume_checkpoint(out, identity, torch):
         raise ValueError(f"--resume: no checkpoint in {where} can be read ({'; '.join(unreadable)}); "
                          f"start afresh with another --out")
     path, st = other
-    diffs = identity_differences(st.get("identity"), identity, int(st.get("epoch", 0)))
+    if not st.get("identity"):
+        raise ValueError(f"--resume: no checkpoint in {where} is of this run; the latest ({os.path.basename(path)}) "
+                         f"was written before checkpoints recorded their run (config, seed, data), so it cannot be "
+                         f"told from another run's: start afresh with another --out")
+    diffs = identity_differences(st["identity"], identity, int(st.get("epoch", 0)))
     raise ValueError(f"--resume: no checkpoint in {where} is of this run; the latest ({os.path.basename(path)}) "
                      f"differs in {'; '.join(diffs)}. Give that run's options, or another --out")
 
