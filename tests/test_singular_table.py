@@ -212,7 +212,7 @@ def test_evaluate_reports_the_model_with_the_table_next_to_the_model_alone(held_
     assert s["learned"]["converged"] == 0 and s["learned+table"]["converged"] == 1 and s["learned+table"]["exact"] == 0
     s.update(family="full-attitude", n=1, seed=20261122, baseline_n=0, model="default", workers=1,
              inference_s_median=1e-4)
-    assert "| learned+table | 1 | 1 (100.0 % verified, 0 exact)" in ev.markdown(s)
+    assert "| learned+table | 1 | 0 | 1 (100.0 % verified, 0 exact)" in ev.markdown(s)      # 0: not covered
 
 
 @pytest.mark.parametrize("j_scale, u_scale", [(100.0, 0.25), (0.01, 1.0)])

@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
@@ -251,8 +252,15 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         warm_budget = CONE_WARM_BUDGET if family == "pointing-cones" else WARM_BUDGET
     warm_budget = float(warm_budget)
     from solvers import warmstart
-    os.makedirs(out, exist_ok=True)
+    check_train_data(train_data, family)
     model = _model(model_path)
+    n_covered = check_coverage(model, model_path, family, n, seed)
+    overlap = held_out_in_training(family, seed, train_data, model)
+    if overlap:
+        print(f"slew evaluate: warning: the held-out problems (--family {family}, --seed {seed}) are the training "
+              f"problems of {', '.join(overlap)} (same family, seed and distribution); give another --seed",
+              file=sys.stderr)
+    os.makedirs(out, exist_ok=True)
     nn_path = None
     if train_data:
         nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"), family=family)
@@ -301,7 +309,8 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         summary["network_measures"] = "canonical form, network and the table's nearest query"
     else:
         summary["network_measures"] = "canonical form + network"
-    summary.update(family=family, n=n, seed=seed, baseline_n=min(baseline_n, n), budget_s=budget, warm_budget_s=warm_budget,
+    summary.update(family=family, n=n, seed=seed, model_covers=n_covered, held_out_in_training=overlap,
+                   baseline_n=min(baseline_n, n), budget_s=budget, warm_budget_s=warm_budget,
                    model=getattr(model, "path", None) or getattr(model, "name", None) or model_path
                    or warmstart.DEFAULT_MODEL_FILE,
                    train_data=[os.fspath(p) for p in (train_data or [])], workers=workers)
@@ -311,6 +320,60 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
         f.write(markdown(summary))
     plot(rows, os.path.join(out, "evaluation.png"))
     return summary
+
+
+def check_train_data(train_data, family) -> None:
+    """``--train-data`` files are datasets of the held-out family (another family's records have
+    no canonical form of this one: the error named neither the option nor the file)."""
+    from .data import file_meta
+    for path in train_data or []:
+        try:
+            meta = file_meta(path)
+        except ValueError as e:
+            raise ValueError(f"--train-data: {e}") from None
+        if meta.get("family") != family:
+            raise ValueError(f"--train-data: {path}: family {meta.get('family')!r}, not the held-out problems' "
+                             f"--family {family!r}")
+
+
+def held_out_in_training(family, seed, train_data=None, model=None) -> list:
+    """The ``--train-data`` files, and the data files the model's card records (``slew train``
+    records them since session 35), whose problems are the held-out ones: the same family, seed
+    and distribution draw the same problems, index by index."""
+    from training.generate import GenerationSpec
+    from .data import file_meta
+    dist = GenerationSpec(family, seed=seed).distribution_dict()
+
+    def same(fam, s, d):
+        # on the fields both state: a file written before a field was added still counts
+        return (fam == family and s == int(seed) and isinstance(d, dict)
+                and all(d[k] == dist[k] for k in d.keys() & dist.keys()))
+    hits = []
+    for path in train_data or []:
+        meta = file_meta(path)
+        if same(meta.get("family"), meta.get("seed"), meta.get("distribution")):
+            hits.append(os.fspath(path))
+    card = getattr(model, "card", None) or {}
+    for d in (card.get("training") or {}).get("data_files") or []:
+        if same(d.get("family"), d.get("seed"), d.get("distribution")):
+            hits.append(f"{d.get('file')} (in the model's card)")
+    return hits
+
+
+def check_coverage(model, model_path, family, n, seed) -> int:
+    """How many of the ``n`` held-out problems ``model`` covers; none is an error (every guess
+    but the baselines would be skipped, and the report would still look like an evaluation)."""
+    from training.generate import GenerationSpec, problem_for
+    spec = GenerationSpec(family, seed=seed)
+    first, covered = None, 0
+    for i in range(n):
+        why = model.covers(problem_for(spec, i))
+        covered += not why
+        first = first or why
+    if not covered:
+        raise ValueError(f"--model: {model_path or 'default'} covers none of the {n} held-out --family {family} "
+                         f"problems (problem 0: {first})")
+    return covered
 
 
 def summarise(rows) -> dict:
@@ -348,6 +411,8 @@ def summarise(rows) -> dict:
             "share_at_best": float(np.mean(np.array(gaps) <= 1e-6)) if gaps else math.nan,
             "not_covered": sum(1 for r in rows if r["guess"] == g and not r.get("covered")),
         }
+    # guesses that ran and rejected every problem (never those that did not run)
+    out["not_applicable"] = [g for g in GUESSES if g not in out and any(r["guess"] == g for r in rows)]
     # the same problems for the eigenaxis comparison of iterations
     if "learned" in out and "eigenaxis" in out:
         sub = {r["index"] for r in rows if r["guess"] == "eigenaxis"}
@@ -366,8 +431,8 @@ def markdown(s) -> str:
              f"({'collocation, auto without a model' if s['family'] == 'pointing-cones' else 'eigenaxis, random, collocation'}) on the "
              f"first {s['baseline_n']} problems; {s['workers']} worker process(es). Each guess alone, no fallback; "
              f"time budget {s.get('warm_budget_s')} s for a model's candidates, {s.get('budget_s')} s for a classical guess.", "",
-             "| guess | problems | converged | Newton it. (median / mean) | median time | p95 time | median time (converged) | tf gap to best (median / p95) | at best |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| guess | problems | not covered | converged | Newton it. (median / mean) | median time | p95 time | median time (converged) | tf gap to best (median / p95) | at best |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for g in GUESSES:
         if g not in s or not isinstance(s[g], dict):
             continue
@@ -380,8 +445,16 @@ def markdown(s) -> str:
         nit = f"{r['nit_median']:.0f} / {r['nit_mean']:.1f}" if g != "collocation" else "–"
         gap = f"{r['gap_median']:.2e} / {r['gap_p95']:.2e}" if r['gap_median'] == r['gap_median'] else "–"
         at = f"{100 * r['share_at_best']:.1f} %" if r['share_at_best'] == r['share_at_best'] else "–"
-        lines.append(f"| {g} | {r['n']} | {conv} | {nit} | {1e3 * r['time_median_s']:.1f} ms | "
+        lines.append(f"| {g} | {r['n']} | {r.get('not_covered', 0)} | {conv} | {nit} | {1e3 * r['time_median_s']:.1f} ms | "
                      f"{1e3 * r['time_p95_s']:.1f} ms | {1e3 * r['time_median_converged_s']:.1f} ms | {gap} | {at} |")
+    if s.get("held_out_in_training"):
+        lines += ["", f"**Warning**: the held-out problems are training problems of "
+                      f"{', '.join(s['held_out_in_training'])} (same family, seed and distribution)."]
+    covers = s.get("model_covers", s["n"])
+    if covers < s["n"]:
+        lines += ["", f"The model covers {covers} of the {s['n']} problems ({100 * covers / s['n']:.1f} %): on the other "
+                      f"{s['n'] - covers} (outside its domain) it gives no guess, and they are left out of its rows "
+                      "(\"not covered\"); its rates are over the problems it covers."]
     if s.get("gap_problems", 0):
         lines += ["", f"The final-time gap is measured on the {s['gap_problems']} problems where every guess ran, "
                       "against the fastest exact extremal any of them found."]
@@ -400,14 +473,21 @@ def markdown(s) -> str:
             lines[-1] += (f" The table's query for the nearest solutions, when reached: median "
                           f"{1e6 * s['table_query_s_median']:.1f} µs.")
     else:
-        lines += ["", "The model covers none of these problems."]
-    none = [g for g in GUESSES if g not in s]
+        lines += ["", "No inference time: the model covers none of the first problems it is timed on."]
+    none = s.get("not_applicable", [])
     if none:
         lines.append(f"Not applicable to this family (the guess or route rejects every problem): {', '.join(none)}.")
     if "nit_ratio_eigenaxis_over_learned" in s:
+        ratio = _two_digits(s["time_ratio_eigenaxis_over_learned"])
         lines.append(f"On the problems both solved: the eigenaxis route took {s['nit_ratio_eigenaxis_over_learned']:.1f}× the "
-                     f"Newton iterations of the learned guess (mean) and {s['time_ratio_eigenaxis_over_learned']:.0f}× its time (median ratio).")
+                     f"Newton iterations of the learned guess (mean) and {ratio}× its time (median ratio).")
     return "\n".join(lines) + "\n"
+
+
+def _two_digits(x) -> str:
+    """``x`` to 2 significant digits, no exponent: 1.30 → "1.3", 0.4 → "0.40", 134 → "130"
+    (``:.0f`` had printed 1.30 as "1" and anything below 0.5 as "0")."""
+    return np.format_float_positional(float(x), precision=2, unique=False, fractional=False, trim="k").rstrip(".")
 
 
 def plot(rows, path):

@@ -8,15 +8,20 @@ counts per axis (3 × (K+1) logits, cross-entropy) and switch instants as fracti
 ``T`` (3 × K sigmoids, MSE on the slots a problem uses). Loss weights, sizes and the
 schedule come from a YAML config (``configs/full-attitude.yaml``).
 
-Run directory: ``config.yaml`` (the resolved config), ``log.csv`` (per epoch: losses and
-validation metrics), ``loss.png``, ``checkpoints/epoch_NNNN.pt`` (resumable with
-``--resume``), ``model.npz`` (the export) and ``MODEL_CARD.md``. Reproducible from the
-seed: one torch thread, seeded shuffles and initialisation.
+Run directory: ``config.yaml`` (the resolved config, with the seed and the data files),
+``log.csv`` (per epoch: losses and validation metrics), ``loss.png``,
+``checkpoints/epoch_NNNN.pt`` (each with its run's identity: ``--resume`` continues only
+the same run), ``model.npz`` (the export), ``model.md`` (its card, readable),
+``model.nn.npz`` (the neighbour table of the same exact solutions) and ``summary.json``
+(the card's training part, the paths written). Reproducible from the seed: one torch
+thread, seeded split, shuffles and initialisation.
 """
 from __future__ import annotations
 
+import copy
 import csv
 import glob
+import hashlib
 import json
 import math
 import os
@@ -26,7 +31,7 @@ import time
 import numpy as np
 import yaml
 
-from .data import split, training_arrays
+from .data import check_distinct, check_domain, file_meta, split, training_arrays
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
 
@@ -126,12 +131,16 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     import torch
     torch.set_num_threads(1)
     torch.manual_seed(seed)
-    cfg = load_config(config, overrides)
+    # epochs as an override, so that load_config's check (≥ 1) applies to it before the data load
+    cfg = load_config(config, dict(overrides or {}, **({} if epochs is None else {"epochs": int(epochs)})))
     out = os.fspath(out)
-    if epochs is not None:
-        cfg["epochs"] = int(epochs)
-    os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     data_paths = [os.fspath(p) for p in data_paths]
+    check_distinct(data_paths)
+    check_domain(data_paths, cfg.get("domain"))
+    identity = run_identity(cfg, seed, data_paths)
+    # before the data load: a refused --resume is known at once
+    resumed = resume_checkpoint(out, identity, torch) if resume else None
+    os.makedirs(os.path.join(out, "checkpoints"), exist_ok=True)
     arrays = _arrays(data_paths, cfg)
     N = arrays["X"].shape[0]
     if N < 10:
@@ -148,11 +157,14 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     lr0, lr1 = float(cfg["learning_rate"]), float(cfg.get("lr_final", cfg["learning_rate"]))
     start_epoch = 0
     log_rows = []
-    ckpts = sorted(glob.glob(os.path.join(out, "checkpoints", "epoch_*.pt")))
-    if resume and ckpts:
-        st = torch.load(ckpts[-1], weights_only=False)
-        net.load_state_dict(st["net"])
-        opt.load_state_dict(st["opt"])
+    if resumed is not None:
+        path, st = resumed
+        try:
+            net.load_state_dict(st["net"])
+            opt.load_state_dict(st["opt"])
+        except (RuntimeError, ValueError, KeyError) as e:   # the identity matched, the file did not
+            raise ValueError(f"--resume: {path}: does not fit this run's network "
+                             f"({str(e).strip().splitlines()[-1][:160]}); start afresh with another --out") from None
         torch.set_rng_state(st["rng"])
         start_epoch = int(st["epoch"])
         log_rows = st["log"]
@@ -165,61 +177,193 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         from tqdm import tqdm
         bar = tqdm(total=E, initial=start_epoch, desc="slew train", unit="epoch")
     t0 = time.perf_counter()
-    for epoch in range(start_epoch, E):
-        frac = epoch / max(1, E - 1)
-        lr = lr1 + 0.5 * (lr0 - lr1) * (1 + math.cos(math.pi * frac)) if cfg.get("lr_schedule") == "cosine" else lr0
-        for g in opt.param_groups:
-            g["lr"] = lr
-        net.train()
-        perm = torch.randperm(n_tr)
-        tot = 0.0
-        for b in range(0, n_tr, bs):
-            i = perm[b:b + bs]
-            batch = {k: v[i] for k, v in train_t.items()}
-            loss, _, _ = _losses(net(batch["X"]), batch, cfg, torch)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            tot += float(loss.detach()) * len(i)
-        net.eval()
-        with torch.no_grad():
-            vl, parts, met = _losses(net(val_t["X"]), val_t, cfg, torch) if len(va_idx) else (torch.tensor(math.nan), {}, {})
-        row = {"epoch": epoch + 1, "lr": lr, "train_loss": tot / n_tr, "val_loss": float(vl),
-               **{f"val_{k}": v for k, v in parts.items()}, **{f"val_{k}": v for k, v in met.items()}}
-        log_rows.append(row)
+    saved = start_epoch     # the last epoch with a checkpoint on disk
+    last = None             # the state at the end of the last finished epoch, for a Ctrl-C
+    try:
+        for epoch in range(start_epoch, E):
+            frac = epoch / max(1, E - 1)
+            lr = lr1 + 0.5 * (lr0 - lr1) * (1 + math.cos(math.pi * frac)) if cfg.get("lr_schedule") == "cosine" else lr0
+            for g in opt.param_groups:
+                g["lr"] = lr
+            net.train()
+            perm = torch.randperm(n_tr)
+            tot = 0.0
+            for b in range(0, n_tr, bs):
+                i = perm[b:b + bs]
+                batch = {k: v[i] for k, v in train_t.items()}
+                loss, _, _ = _losses(net(batch["X"]), batch, cfg, torch)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                tot += float(loss.detach()) * len(i)
+            net.eval()
+            with torch.no_grad():
+                vl, parts, met = _losses(net(val_t["X"]), val_t, cfg, torch) if len(va_idx) else (torch.tensor(math.nan), {}, {})
+            row = {"epoch": epoch + 1, "lr": lr, "train_loss": tot / n_tr, "val_loss": float(vl),
+                   **{f"val_{k}": v for k, v in parts.items()}, **{f"val_{k}": v for k, v in met.items()}}
+            log_rows.append(row)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
+                                struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
+            # a copy: the next epoch changes the live tensors, and a Ctrl-C in it must save this state
+            last = copy.deepcopy({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
+                                  "epoch": epoch + 1, "log": list(log_rows), "identity": identity})
+            if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
+                _save_checkpoint(torch, out, last)
+                saved = epoch + 1
+    except KeyboardInterrupt:
         if bar is not None:
-            bar.update(1)
-            bar.set_postfix(train=f"{row['train_loss']:.4f}", val=f"{row['val_loss']:.4f}",
-                            struct=f"{met.get('structure_acc', met.get('touch_set_acc', 0)):.3f}")
-        if (epoch + 1) % int(cfg.get("checkpoint_every", 50)) == 0 or epoch + 1 == E:
-            torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(),
-                        "epoch": epoch + 1, "log": log_rows}, os.path.join(out, "checkpoints", f"epoch_{epoch + 1:04d}.pt"))
+            bar.close()
+        raise TrainingInterrupted(_keep_on_interrupt(out, torch, log_rows, last, saved, E)) from None
     if bar is not None:
         bar.close()
-    wall = time.perf_counter() - t0
-    _write_log(out, log_rows)
-    final = log_rows[-1]
-    card_training = {
-        "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
-        "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
-        "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
-        "torch": torch.__version__, "python": platform.python_version(),
-        "val_metrics": {k[4:]: final[k] for k in final if k.startswith("val_")},
-    }
-    path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
-    summary = dict(card_training, model=path, run_dir=out)
-    if _is_cones(cfg):
-        # the shipped pointing-cones warm start tries the nearest solved problems first
-        # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
-        summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
-    else:
-        # the shipped full-attitude warm start tries them after the network's structured
-        # candidates (solvers.warmstart.attitude_ensemble)
-        summary["table"] = export_attitude_table(data_paths, table_path(path), int(cfg["max_switches"]),
-                                                 cfg.get("domain", {}))
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=1)
+    try:
+        wall = time.perf_counter() - t0
+        _write_log(out, log_rows)
+        final = log_rows[-1]
+        card_training = {
+            "family": cfg.get("family"), "data": [os.path.basename(p) for p in data_paths],
+            "data_files": data_files(data_paths, identity["data_sha256"]),
+            "n_records": int(arrays["n_records"]), "n_exact_solutions": int(N), "n_train": int(n_tr),
+            "n_val": int(len(va_idx)), "epochs": E, "seed": seed, "train_wall_time_s": round(wall, 1),
+            "torch": torch.__version__, "python": platform.python_version(),
+            "val_metrics": {k[4:]: final[k] for k in final if k.startswith("val_")},
+        }
+        path = export(net, cfg, x_mean, x_std, card_training, export_path or os.path.join(out, "model.npz"))
+        summary = dict(card_training, model=path, run_dir=out)
+        if _is_cones(cfg):
+            # the shipped pointing-cones warm start tries the nearest solved problems first
+            # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
+            summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
+        else:
+            # the shipped full-attitude warm start tries them after the network's structured
+            # candidates (solvers.warmstart.attitude_ensemble)
+            summary["table"] = export_attitude_table(data_paths, table_path(path), int(cfg["max_switches"]),
+                                                     cfg.get("domain", {}))
+        with open(os.path.join(out, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=1)
+    except KeyboardInterrupt:
+        # the last checkpoint holds the finished training: a resume only writes the files again
+        raise TrainingInterrupted(f"after the last epoch ({E}), while writing the model into {out}: "
+                                  f"--resume writes it again from checkpoints/epoch_{E:04d}.pt") from None
     return summary
+
+
+def data_files(data_paths, sha256) -> list:
+    """What the card records of each data file: its name, checksum, and the family, seed and
+    distribution its problems are drawn from (``slew evaluate`` warns when its held-out problems
+    are these)."""
+    out = []
+    for path, sha in zip(data_paths, sha256):
+        meta = file_meta(path)
+        out.append({"file": os.path.basename(path), "sha256": sha, "family": meta.get("family"),
+                    "seed": meta.get("seed"), "distribution": meta.get("distribution")})
+    return out
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during the epochs or while the run directory is written; ``args[0]`` says what
+    was kept."""
+
+
+def _keep_on_interrupt(out, torch, log_rows, last, saved, E) -> str:
+    """After a Ctrl-C: ``log.csv`` of the epochs done and a checkpoint of the last finished
+    epoch (the periodic ones can be up to ``checkpoint_every - 1`` epochs behind), which
+    ``--resume`` continues as if nothing had happened. Returns what was kept, in words."""
+    if last is not None and last["epoch"] > saved:
+        _save_checkpoint(torch, out, last)
+        saved = last["epoch"]
+    rows = [r for r in log_rows if r["epoch"] <= saved]    # the log of the state kept (a Ctrl-C can
+    if rows:                                               # come between an epoch's row and its copy)
+        _write_log(out, rows)
+    if not saved:
+        return f"in epoch 1 of {E}: no epoch finished, no checkpoint written"
+    return (f"after epoch {saved} of {E}: {os.path.join(out, 'log.csv')} and "
+            f"{os.path.join(out, 'checkpoints', f'epoch_{saved:04d}.pt')} kept; --resume continues")
+
+
+def file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_identity(cfg, seed, data_paths) -> dict:
+    """What makes two runs the same run: the resolved config (epochs included: the learning-rate
+    schedule depends on it), the seed, and the data files (where they are, and their content)."""
+    # checkpoint_every only says when to save: a resume may change it
+    cfg = {k: v for k, v in cfg.items() if k != "checkpoint_every"}
+    return {"config": json.loads(json.dumps(cfg, default=str)), "seed": int(seed),
+            "data": [os.path.realpath(p) for p in data_paths],
+            "data_sha256": [file_sha256(p) for p in data_paths]}
+
+
+def identity_differences(saved, now, epoch) -> list:
+    """The options in which the run of a checkpoint at ``epoch`` (identity ``saved``) differs
+    from this one (``now``), each with the two values."""
+    diffs = []
+    if saved["data"] != now["data"]:
+        diffs.append(f"--data ({', '.join(map(os.path.basename, saved['data']))}; now "
+                     f"{', '.join(map(os.path.basename, now['data']))})")
+    elif saved["data_sha256"] != now["data_sha256"]:
+        changed = [os.path.basename(p) for p, a, b in zip(now["data"], saved["data_sha256"], now["data_sha256"]) if a != b]
+        diffs.append(f"--data (the content of {', '.join(changed)} changed since)")
+    if saved["seed"] != now["seed"]:
+        diffs.append(f"--seed ({saved['seed']}; now {now['seed']})")
+    c0, c1 = saved["config"], now["config"]
+    if c0.get("epochs") != c1.get("epochs"):
+        beyond = f", already at epoch {epoch}, beyond" if epoch > int(c1["epochs"]) else ""
+        diffs.append(f"--epochs (a {c0.get('epochs')}-epoch run{beyond}; now {c1.get('epochs')})")
+    keys = sorted(k for k in set(c0) | set(c1) if k != "epochs" and c0.get(k) != c1.get(k))
+    if keys:
+        diffs.append(f"--config ({', '.join(keys)})")
+    return diffs
+
+
+def resume_checkpoint(out, identity, torch):
+    """``(path, state)`` of the latest checkpoint in ``out`` written by this run (same
+    identity), ``None`` if there is no checkpoint at all. Checkpoints of other runs (a fresh run
+    into the same ``--out`` leaves them) are never resumed: if none is of this run, an error
+    names what differs from the latest one."""
+    where = os.path.join(out, "checkpoints")
+    other, unreadable = None, []
+    for path in sorted(glob.glob(os.path.join(where, "epoch_*.pt")), reverse=True):
+        try:
+            st = torch.load(path, weights_only=False)
+        except Exception as e:   # noqa: BLE001 - a torn or foreign file is not this run's checkpoint
+            unreadable.append(f"{os.path.basename(path)}: {type(e).__name__}")
+            continue
+        if isinstance(st, dict) and st.get("identity") == identity:
+            return path, st
+        other = other or (path, st if isinstance(st, dict) else {})
+    if other is None and not unreadable:
+        return None
+    if other is None:
+        raise ValueError(f"--resume: no checkpoint in {where} can be read ({'; '.join(unreadable)}); "
+                         f"start afresh with another --out")
+    path, st = other
+    if not st.get("identity"):
+        raise ValueError(f"--resume: no checkpoint in {where} is of this run; the latest ({os.path.basename(path)}) "
+                         f"was written before checkpoints recorded their run (config, seed, data), so it cannot be "
+                         f"told from another run's: start afresh with another --out")
+    diffs = identity_differences(st["identity"], identity, int(st.get("epoch", 0)))
+    raise ValueError(f"--resume: no checkpoint in {where} is of this run; the latest ({os.path.basename(path)}) "
+                     f"differs in {'; '.join(diffs)}. Give that run's options, or another --out")
+
+
+def _save_checkpoint(torch, out, state):
+    """Write to a temporary name, then rename: a run stopped mid-write keeps its last checkpoint."""
+    path = os.path.join(out, "checkpoints", f"epoch_{state['epoch']:04d}.pt")
+    tmp = path + ".tmp"
+    try:
+        torch.save(state, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 def table_path(model_path):
@@ -249,7 +393,7 @@ def export_cone_table(data_paths, path, max_switches, k=4):
 
 
 def export(net, cfg, x_mean, x_std, training_info, path):
-    """Write the numpy model file (and ``MODEL_CARD.md`` next to it)."""
+    """Write the numpy model file ``NAME.npz`` and its readable card ``NAME.md`` next to it."""
     from solvers.warmstart.model import WarmStartModel, output_layout
     import solvers
     lin = [m for m in net if hasattr(m, "weight")]
@@ -282,7 +426,7 @@ def write_card_md(card, path):
              f"- format: {card.get('format')} v{card.get('format_version')}, sha256 of the weights `{card.get('sha256')}`",
              f"- network: MLP {card.get('hidden')} ({card.get('activation')}), {card.get('max_switches')} switch slots per axis",
              f"- covers (domain): `{json.dumps(card.get('domain'))}`",
-             f"- training family: {t.get('family')}; data files: {', '.join(t.get('data', []))}",
+             f"- training family: {t.get('family')}; data files: {_data_names(t)}",
              f"- dataset: {t.get('n_records')} records, {t.get('n_exact_solutions')} exact solutions "
              f"({t.get('n_train')} train / {t.get('n_val')} validation)",
              f"- epochs {t.get('epochs')}, seed {t.get('seed')}, training wall time {t.get('train_wall_time_s')} s, torch {t.get('torch')}",
@@ -294,6 +438,14 @@ def write_card_md(card, path):
     del n_params
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
+
+
+def _data_names(training) -> str:
+    """The data files, with their seeds where the card records them."""
+    files = training.get("data_files")
+    if not files:
+        return ", ".join(training.get("data", []))
+    return ", ".join(f"{d['file']} (seed {d['seed']}, sha256 {str(d['sha256'])[:12]}…)" for d in files)
 
 
 def _write_log(out, rows):

@@ -1,0 +1,56 @@
+"""``slew evaluate``'s ``--train-data``: another family's file is refused naming the option and
+the file, and held-out problems that are training problems (same family, seed, distribution,
+from --train-data or the model's card) are warned about (review s35, findings 8 and 13)."""
+import json
+import os
+
+import pytest
+
+from training.cli import main
+
+HERE = os.path.dirname(__file__)
+DATA = os.path.join(HERE, "data", "full-attitude-small.jsonl")          # full-attitude, seed 100
+CONES = os.path.join(HERE, "data", "pointing-cones-small.jsonl")
+
+
+def _evaluate(tmp_path, *extra):
+    return main(["evaluate", "--n", "1", "--baseline-n", "0", "--workers", "1", "--no-progress",
+                 "--out", str(tmp_path / "ev"), *extra])
+
+
+def test_train_data_of_another_family_is_refused_naming_the_option_and_the_file(tmp_path, capsys):
+    code = _evaluate(tmp_path, "--train-data", DATA, CONES)
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert f"--train-data: {CONES}: family 'pointing-cones', not the held-out problems' --family 'full-attitude'" in err
+    assert not (tmp_path / "ev").exists()
+
+
+def test_train_data_that_is_not_a_dataset_is_refused(tmp_path, capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    assert _evaluate(tmp_path, "--train-data", str(notes)) == 2
+    assert f"--train-data: {notes}: not a slew dataset file" in capsys.readouterr().err
+
+
+def test_held_out_problems_from_the_training_seed_are_warned_about(tmp_path, capsys):
+    assert _evaluate(tmp_path, "--seed", "100", "--train-data", DATA) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert err == [f"slew evaluate: warning: the held-out problems (--family full-attitude, --seed 100) are the "
+                   f"training problems of {DATA} (same family, seed and distribution); give another --seed"]
+    s = json.load(open(tmp_path / "ev" / "summary.json"))
+    assert s["held_out_in_training"] == [DATA]
+    assert "**Warning**: the held-out problems are training problems of" in open(tmp_path / "ev" / "report.md").read()
+    # another seed: no warning
+    assert _evaluate(tmp_path, "--seed", "101", "--train-data", DATA) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_the_model_cards_data_are_checked_too(tmp_path, capsys):
+    pytest.importorskip("torch")
+    assert main(["train", "--data", DATA, "--out", str(tmp_path / "run"), "--epochs", "1", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert _evaluate(tmp_path, "--seed", "100", "--model", str(tmp_path / "run" / "model.npz")) == 0
+    assert "are the training problems of full-attitude-small.jsonl (in the model's card)" in capsys.readouterr().err
+    card = json.loads(str(__import__("numpy").load(tmp_path / "run" / "model.npz")["card"]))
+    assert card["training"]["data_files"][0]["seed"] == 100 and len(card["training"]["data_files"][0]["sha256"]) == 64
