@@ -14,7 +14,7 @@ import solvers
 from slew_env import SlewProblem
 
 # a GNC review's case A1: J = diag(40, 55, 70) kg m², 0.1 N m a wheel, 90° about z
-A1 = SlewProblem([40.0, 55.0, 70.0], torque_max=0.1, qf=[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+A1 = SlewProblem([40.0, 55.0, 70.0], torque_max=0.1, qf=[math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])
 R = math.radians(1.0)
 
 
