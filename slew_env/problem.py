@@ -403,6 +403,8 @@ class SlewProblem:
         worst = 0.0
         if w.shape[0] == 0:
             return worst
+        if not np.all(np.isfinite(w)):
+            return math.inf        # (max(0.0, nan) is 0.0: a NaN rate would have passed the check)
         if self.rate_max is not None:
             worst = max(worst, float(np.max(np.abs(w) / self.rate_max)))
         if self.rate_norm_max is not None:

@@ -230,9 +230,11 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         if c >= len(prob.cones):
             raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(prob.cones)} cone(s)")
     reserved = 0.0
-    if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None:
+    if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None \
+            and (not prob.cones or math.isfinite(baseline_time(prob))):
         # the fallback is planned after the route: its time comes out of the route's budget, so
-        # that the answer, whichever it is, is there within the budget
+        # that the answer, whichever it is, is there within the budget (with cones only where its
+        # path keeps clear of them: elsewhere it would fail its clearance check, for nothing)
         budget = float(options["time_budget"])
         reserved = min(FALLBACK_RESERVE, FALLBACK_RESERVE_SHARE * budget)
         options["time_budget"] = budget - reserved

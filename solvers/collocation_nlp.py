@@ -53,6 +53,8 @@ class Scaled:
         a limit."""
         w = np.asarray(w, dtype=float).reshape(-1, 3)
         worst = 0.0
+        if not np.all(np.isfinite(w)):
+            return math.inf        # (max(0.0, nan) is 0.0: a NaN rate would have passed the check)
         if self.rate is not None:
             worst = float(np.max(np.max(np.abs(w), axis=0) / self.rate))
         if self.rate_norm is not None:

@@ -30,7 +30,8 @@ from slew_env import SlewProblem
 from slew_env.core.quaternion import qerror_angle
 from slew_env.checks import is_integer
 from .attitude_bvp import AttitudeBVP
-from .eigenaxis import _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time, reference_problem
+from .eigenaxis import (BASELINE_CLEARANCE, _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time,
+                        reference_problem)
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
 from .verify import failure_text, make_check
 
@@ -200,8 +201,10 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
                         t=td, q=qd, omega=rd[:, None] * n[None, :], u=ud, costate=np.full((td.size, 7), np.nan),
                         method="eigenaxis", route=f"eigenaxis slew (phase-plane profile, {n_grid} steps)",
                         guess="eigenaxis", n_candidates=1, candidates_tf=[round(tf, 9)],
-                        # (a path into a cone is no baseline: ``eigenaxis.baseline_time``)
-                        baseline_tf=tf if "cone_clearance" not in text else math.nan,
+                        # (with cones, as ``eigenaxis.baseline_time`` gives it: only where the path keeps
+                        # BASELINE_CLEARANCE from every cone)
+                        baseline_tf=tf if not target.cones or checks["cone_clearance"]["value"] >= BASELINE_CLEARANCE
+                        else math.nan,
                         verification=checks, problem=target, _control=control)
 
 

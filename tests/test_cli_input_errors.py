@@ -74,6 +74,9 @@ WARM = ["--solve-fn", "training.generate:solve_warm"]
     (WARM + ["--solve-options", '{"fallback": true, "singular_tabel": false}'], "unknown option(s) ['singular_tabel']"),
     (WARM + ["--solve-options", '{"fallback": "yes"}'], "fallback: expected true or false"),
     (WARM + ["--solve-options", '{"time_budget": -1}'], "time_budget: must be a positive"),
+    (WARM + ["--solve-options", '{"method": "auto"}'], "method: without the fallback solve_warm runs the indirect"),
+    (WARM + ["--solve-options", '{"warm_start": "default"}'], "warm_start: solve_warm takes its model as 'model'"),
+    (["--solve-options", '{"warm_start": "no/such/model.npz"}'], "warm_start: "),
     (["--n", "1000000001"], "n: at most 1,000,000 problems a run"),
 ])
 def test_generate_checks_the_warm_route_and_n_before_writing(tmp_path, capsys, extra, needle):
@@ -113,3 +116,12 @@ def test_a_continued_file_notes_another_route_and_every_record_names_its_options
     out_text = capsys.readouterr().out
     assert 'note: this run solved with solve_options {"sleep": 0.01} (the file began with {"sleep": 0})' in out_text
     assert [r["solve_options"] for r in load(out)] == [{"sleep": 0}, {"sleep": 0.01}]
+
+
+def test_the_warm_route_with_its_fallback_takes_a_method():
+    # accepted before the option check existed (a review: the check had turned it into a TypeError
+    # reported as a --family-options error)
+    from training.generate import GenerationSpec
+    spec = GenerationSpec("full-attitude", n=1, solve_fn="training.generate:solve_warm",
+                          solve_options={"fallback": True, "method": "indirect", "time_budget": 1.0})
+    assert spec.solve_options["method"] == "indirect"

@@ -194,3 +194,14 @@ def test_an_existing_file_that_is_not_a_dataset_is_left_alone(tmp_path, content)
     with pytest.raises(DatasetError, match="not a slew dataset file .* refusing to append to it or overwrite it"):
         DatasetWriter(p, _meta())
     assert p.read_bytes() == content
+
+
+def test_a_metadata_line_cut_in_its_first_bytes_is_rewritten(tmp_path):
+    # a crash or a full disk while the metadata went into an existing empty file can leave any
+    # prefix of it; the refusal of files that are not datasets must not take these for one
+    p = tmp_path / "d.jsonl"
+    p.write_bytes(b'{"_me')
+    with DatasetWriter(p, _meta()) as w:
+        assert w.truncated_bytes == 5
+        w.append(_record(0))
+    assert [r["index"] for r in load(p)] == [0]

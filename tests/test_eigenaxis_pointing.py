@@ -105,3 +105,39 @@ def test_the_fallback_flies_a_pointing_slew_where_the_route_found_none(monkeypat
         assert "fallback: the eigenaxis slew" in s.route and "Time budget exhausted" in s.message
         assert s.tf == pytest.approx(plain.tf, rel=1e-12)
     assert cone_sol.verification["cone_clearance"]["passed"]
+
+
+def _cone_at_distance(d, half):
+    """A cone whose axis lies ``half + d`` from the arc's midpoint, off the arc's plane: the arc
+    passes ``d`` rad from its boundary, at the midpoint."""
+    mid = (SENSOR + TARGET) / np.linalg.norm(SENSOR + TARGET)
+    normal = np.cross(SENSOR, TARGET) / np.linalg.norm(np.cross(SENSOR, TARGET))
+    return {"axis": math.cos(half + d) * mid + math.sin(half + d) * normal, "half_angle": half}
+
+
+def test_a_path_that_clears_a_cone_closely_is_flown_but_is_no_baseline():
+    # the baseline rule (eigenaxis.baseline_time): only a path 0.005 rad clear of every cone; the
+    # eigenaxis answer had given its tf as the baseline for any path its clearance check passed
+    cone = _cone_at_distance(0.002, math.radians(15.0))
+    assert _exact_margin(np.asarray(cone["axis"]), cone["half_angle"]) == pytest.approx(0.002, abs=1e-9)
+    sol = solvers.solve(_pointing(cones=[cone]), method="eigenaxis")
+    assert sol.success and 0.0 < sol.verification["cone_clearance"]["value"] <= 0.002
+    assert math.isnan(sol.baseline_tf)
+
+
+def test_the_fallback_keeps_no_time_where_the_path_enters_a_cone(monkeypatch):
+    import solvers.api as api
+    seen = {}
+
+    def route(prob, method, guess, warm_start, options, *rest):
+        seen["time_budget"] = options["time_budget"]
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                            method="indirect", problem=prob, route="stub")
+
+    monkeypatch.setattr(api, "_dispatch", route)
+    blocked = _pointing(cones=[_cone_at_distance(-0.2, math.radians(15.0))])
+    clear = _pointing(cones=[_cone_at_distance(0.3, math.radians(15.0))])
+    solvers.solve(blocked, time_budget=0.2, fallback="eigenaxis")
+    assert seen["time_budget"] == 0.2                  # the route keeps the whole budget
+    solvers.solve(clear, time_budget=0.2, fallback="eigenaxis")
+    assert seen["time_budget"] == pytest.approx(0.2 - 0.025, rel=1e-12)

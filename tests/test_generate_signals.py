@@ -104,3 +104,47 @@ def test_pool_workers_end_with_their_parent(tmp_path, sig, code):
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def test_the_handlers_are_set_again_where_ray_replaced_them():
+    # ray.init sets its own SIGTERM handler: a SIGTERM then ended a Ray run with exit 1, no summary
+    from training.generate import _StopSignals
+    before = signal.getsignal(signal.SIGTERM)
+    with _StopSignals() as stop:
+        signal.signal(signal.SIGTERM, lambda s, f: None)       # what ray.init does
+        stop.rearm()
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)
+        assert stop.signum == signal.SIGTERM
+    assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_a_record_whose_fsync_a_signal_cut_counts_as_written(tmp_path, monkeypatch):
+    import training.dataset as ds
+    from training.dataset import DatasetWriter
+    with DatasetWriter(tmp_path / "d.jsonl", ds.make_meta("full-attitude", 0, {})) as w:
+        def interrupted(fd):
+            raise KeyboardInterrupt
+        monkeypatch.setattr(ds.os, "fsync", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            w.append({"index": 0, "success": True})
+        assert w.done == {0: True}                          # it is in the file
+    monkeypatch.undo()
+    assert [r["index"] for r in load(tmp_path / "d.jsonl")] == [0]
+
+
+@pytest.mark.parametrize("reraise", [True, False])
+def test_a_deferred_interrupt_is_raised_after_the_block_or_dropped(reraise):
+    from training.interrupts import interrupt_deferred
+    done = []
+    try:
+        with interrupt_deferred(reraise=reraise):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)
+            done.append(True)                              # the block was not cut
+    except KeyboardInterrupt:
+        assert reraise
+    else:
+        assert not reraise
+    assert done == [True]

@@ -96,3 +96,11 @@ def test_learned_warm_starts_do_not_cover_it():
     p = SlewProblem([0.5, 0.8, 1.0], qf=[0.9, 0.3, 0.2, 0.2449489742783178], rate_norm_max=2.0)
     assert model.covers(p.replace(rate_norm_max=None)) is None
     assert "rate_norm_max" in model.covers(p)
+
+
+def test_a_nan_rate_fails_the_rate_check():
+    # max(0.0, nan) is 0.0: one NaN had made the ratio 0, a pass, and hidden real excesses beside it
+    from solvers.collocation_nlp import Scaled
+    for p in (A1.replace(rate_norm_max=R), A1.replace(rate_max=R), A1.replace(rate_max=R, rate_norm_max=R)):
+        assert p.rate_limit_ratio([[math.nan, 0.0, 0.0], [2 * R, 0.0, 0.0]]) == math.inf
+        assert Scaled.of(p).rate_ratio([[0.0, math.nan, 0.0]]) == math.inf

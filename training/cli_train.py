@@ -5,9 +5,9 @@ import contextlib
 import json
 import os
 import shutil
-import signal
 import sys
-import threading
+
+from .interrupts import interrupt_deferred
 
 
 def add_arguments(p):
@@ -90,7 +90,7 @@ def publish(pairs):
             tmp = os.path.join(os.path.dirname(os.path.abspath(dst)), f".{os.path.basename(dst)}.{os.getpid()}.tmp")
             tmps.append(tmp)
             shutil.copyfile(src, tmp)
-        with _interrupt_deferred():
+        with interrupt_deferred():
             for tmp, (_, dst) in zip(tmps, pairs):
                 os.replace(tmp, dst)
     finally:
@@ -99,18 +99,3 @@ def publish(pairs):
                 os.remove(tmp)
 
 
-@contextlib.contextmanager
-def _interrupt_deferred():
-    """A SIGINT inside the block is raised as KeyboardInterrupt when it ends (main thread only:
-    only there can a handler be set, and only there does Python raise KeyboardInterrupt)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got = []
-    old = signal.signal(signal.SIGINT, lambda sig, frame: got.append(sig))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_DFL if old is None else old)
-    if got:
-        raise KeyboardInterrupt

@@ -323,7 +323,8 @@ class DatasetWriter:
                     break
                 data += chunk
             scan = _scan_bytes(data, self.path)
-            if scan.meta is None and data and not data.startswith(b'{"' + META_KEY.encode() + b'"'):
+            head = b'{"' + META_KEY.encode() + b'"'
+            if scan.meta is None and data and not (data.startswith(head) or head.startswith(data)):
                 # no metadata line, but content that does not begin one: not a dataset — a JSON
                 # file or notes given as -o by mistake, which cutting the "partial line" away
                 # would destroy (a run killed while writing the metadata leaves its beginning)
@@ -378,9 +379,10 @@ class DatasetWriter:
         if META_KEY in record:
             raise DatasetError(f"record: must not contain {META_KEY!r}")
         _write_all(self.fd, dumps_line(record))
+        # (in the file from here on: a signal during the fsync must not leave it counted as missing)
+        self.done[idx] = record.get("success") is True
         if self.fsync:
             os.fsync(self.fd)
-        self.done[idx] = record.get("success") is True
 
     def close(self):
         if self.fd >= 0:

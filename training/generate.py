@@ -121,22 +121,30 @@ def check_route_options(solve_fn: str, options: dict) -> None:
     (``auto`` with the fallback, else ``indirect``: an unknown key, e.g. a typo, is refused, not
     ignored)."""
     import solvers
+    from solvers.warmstart import resolve
     opts = dict(options)
+    opts.pop("guess", None)          # (a solvers.Guess: only from Python, checked by solve)
     if solve_fn == WARM_SOLVE_FN:
         fallback = opts.pop("fallback", False)
         if not isinstance(fallback, bool):
             raise ValueError(f"fallback: expected true or false, got {fallback!r}")
-        model = opts.pop("model", None)
-        from solvers.warmstart import resolve
-        try:
-            resolve(model or "default")
-        except (OSError, ValueError) as e:
-            raise ValueError(f"model: {e}") from None
-        method = "auto" if fallback else "indirect"
+        if "warm_start" in opts:
+            raise ValueError("warm_start: solve_warm takes its model as 'model'")
+        if not fallback and "method" in opts:
+            raise ValueError("method: without the fallback solve_warm runs the indirect solver from the model's "
+                             "guess; 'method' applies with \"fallback\": true")
+        models = [("model", opts.pop("model", None) or "default")]
+        method = opts.pop("method", "auto") if fallback else "indirect"
     else:
         method = opts.pop("method", "auto")
-    for key in ("warm_start", "guess"):
-        opts.pop(key, None)
+        models = [("warm_start", opts.pop("warm_start"))] if opts.get("warm_start") is not None else []
+    for key, model in models:
+        # a model that does not load would make every record a rejection, kept for good
+        try:
+            resolve(model)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{key}: {e}") from None
+    opts.pop("warm_start", None)
     solvers.check_options(method, **opts)
 
 
@@ -358,6 +366,13 @@ class _StopSignals:
                 self._old[sig] = signal.signal(sig, self._handler)
         return self
 
+    def rearm(self):
+        """Set the handlers again where something replaced them (``ray.init`` sets its own
+        SIGTERM handler: a SIGTERM then ended the run with exit 1 and no summary)."""
+        if self._old:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._handler)
+
     def __exit__(self, *exc):
         for sig, old in self._old.items():
             signal.signal(sig, old)
@@ -430,7 +445,7 @@ def generate(spec: GenerationSpec, path, workers: Optional[int] = None, backend:
             with stop:
                 if todo:
                     if backend == "ray":
-                        _run_ray(spec, todo, write, workers, address, solve_fn, window, summary)
+                        _run_ray(spec, todo, write, workers, address, solve_fn, window, summary, stop.rearm)
                     elif (workers or _default_workers()) == 1 or len(todo) == 1:
                         for i in todo:
                             write(solve_task(spec, i, solve_fn))
@@ -516,7 +531,7 @@ def _run_local(spec, todo, write, workers, solve_fn, window, summary, max_pool_r
         queue.extend(sorted(lost, reverse=True))
 
 
-def _run_ray(spec, todo, write, workers, address, solve_fn, window, summary):
+def _run_ray(spec, todo, write, workers, address, solve_fn, window, summary, rearm=lambda: None):
     """Ray remote tasks running ``solve_task``; the driver writes records as they complete."""
     try:
         import ray
@@ -530,6 +545,7 @@ def _run_ray(spec, todo, write, workers, address, solve_fn, window, summary):
             kw["num_cpus"] = workers
         ray.init(**kw, log_to_driver=False)
         started = True
+        rearm()
     pending = {}
     try:
         task = ray.remote(num_cpus=1, max_retries=2)(solve_task)

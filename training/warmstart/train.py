@@ -271,12 +271,14 @@ def _keep_on_interrupt(out, torch, log_rows, last, saved, E) -> str:
     """After a Ctrl-C: ``log.csv`` of the epochs done and a checkpoint of the last finished
     epoch (the periodic ones can be up to ``checkpoint_every - 1`` epochs behind), which
     ``--resume`` continues as if nothing had happened. Returns what was kept, in words."""
-    if last is not None and last["epoch"] > saved:
-        _save_checkpoint(torch, out, last)
-        saved = last["epoch"]
-    rows = [r for r in log_rows if r["epoch"] <= saved]    # the log of the state kept (a Ctrl-C can
-    if rows:                                               # come between an epoch's row and its copy)
-        _write_log(out, rows)
+    from ..interrupts import interrupt_deferred
+    with interrupt_deferred(reraise=False):     # (a second Ctrl-C must not cut what the first keeps)
+        if last is not None and last["epoch"] > saved:
+            _save_checkpoint(torch, out, last)
+            saved = last["epoch"]
+        rows = [r for r in log_rows if r["epoch"] <= saved]    # the log of the state kept (a Ctrl-C can
+        if rows:                                               # come between an epoch's row and its copy)
+            _write_log(out, rows)
     if not saved:
         return f"in epoch 1 of {E}: no epoch finished, no checkpoint written"
     return (f"after epoch {saved} of {E}: {os.path.join(out, 'log.csv')} and "
