@@ -229,6 +229,11 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     for k, (c, _, _) in enumerate((guess.touches or []) if guess is not None else []):
         if c >= len(prob.cones):
             raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(prob.cones)} cone(s)")
+    if not prob.is_rest_to_rest and prob.slew_angle < 1e-12 and np.array_equal(prob.omega0, prob.omegaf):
+        # (at rest every route refuses it itself; with a rate, collocation ended in IPOPT's
+        # Restoration_Failed)
+        raise ValueError(("qf" if prob.qf is not None else "sensor_target") + ", omegaf: the target state is the "
+                         "start state (the same attitude and rate): tf = 0, nothing to solve")
     reserved = 0.0
     if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None \
             and (not prob.cones or math.isfinite(baseline_time(prob))):
@@ -495,8 +500,10 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
             and (not prob.cones or math.isfinite(baseline_time(prob))):
         # a user with a slew to fly and no verified answer should learn that one is offered (with
         # cones, where the eigenaxis path keeps clear of them)
-        sol.message += (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
-                        "baseline_tf), checked by its own replay, not time-optimal.")
+        text = sol.message.rstrip()
+        sol.message = (text + ("" if text.endswith((".", ")")) else ".")
+                       + " No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
+                       "baseline_tf), checked by its own replay, not time-optimal.")
     return sol
 
 

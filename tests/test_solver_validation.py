@@ -176,3 +176,25 @@ def test_a_wild_guess_fails_cleanly_within_budget():
 def test_zero_slew_is_an_error_free_trivial_problem():
     with pytest.raises(ValueError, match=r"qf: the target equals the start"):
         solvers.solve(_prob(qf=[1, 0, 0, 0]))
+
+
+@pytest.mark.parametrize("target", [dict(qf=[0.0, 1.0, 0.0, 0.0]), dict(sensor_target=[1.0, 0.0, 0.0])])
+def test_a_target_state_that_is_the_start_state_with_a_rate_is_refused(target):
+    # tf = 0 meets it; collocation had ended in IPOPT's Restoration_Failed (an outside replay)
+    p = SlewProblem([0.6, 0.8, 1.0], q0=[0.0, 1.0, 0.0, 0.0] if "qf" in target else [1.0, 0.0, 0.0, 0.0],
+                    omega0=[0.0, 0.2, 0.0], omegaf=[0.0, 0.2, 0.0], **target)
+    with pytest.raises(ValueError, match=r"omegaf: the target state is the start state .* tf = 0, nothing to solve"):
+        solvers.solve(p)
+
+
+def test_a_failed_answer_s_fallback_hint_is_a_sentence_of_its_own():
+    # "... also failed: replay No verified answer: ..." ran two sentences together (an outside
+    # replay: every candidate of this pointing slew reaches the antipode of the target)
+    p = SlewProblem([0.3663194301289649, 0.6330363724973094, 0.8380369309859754],
+                    q0=[0.21654309694452248, 0.2083933054035459, -0.3715065381515606, 0.8784441983070425],
+                    sensor_target=[0.9602602256449883, -0.18982144031839127, -0.20461700769898647])
+    sol = solvers.solve(p, method="indirect")
+    assert not sol.success and "the sensor ends pointing away from the target" in sol.message
+    head, _, _ = sol.message.partition(" No verified answer: fallback='eigenaxis'")
+    assert head != sol.message and head.endswith((".", ")"))
+    assert solvers.solve(p).success            # auto answers it
