@@ -8,7 +8,10 @@ process solves small representative problems of that kind first, without a budge
 kernel its routes call is loaded, and the shipped model files with them. A time budget then
 holds from the first solve on. Measured (a review, 2026-11-24): 0.2–1.1 s a kind without cones
 and 0.8–1.8 s with cones once numba's cache exists; every kind (``load_kernels()``) 7.7–7.9 s,
-79 s on a fresh install. One thread loads; another that needs a kind meanwhile waits for it.
+79 s on a fresh install. Since session 35 every kind also plans the eigenaxis slew, and a kind
+with cones solves a second problem whose path clears its cone: 1.25 s for pointing slews, 2.1 s
+with cones, 10.3 s for every kind (2026-11-25; the slow tests had found pointing kinds loading
+kernels inside their budget). One thread loads; another that needs a kind meanwhile waits for it.
 
 The kinds are the combinations of the torque bound (per-axis or p-norm), the target
 (full attitude or pointing only) and whether the problem has keep-out cones: the kernels'
@@ -55,9 +58,13 @@ def _representatives(kind: tuple) -> list:
     else:
         base = SlewProblem(inertia, torque_norm=p, q0=[1.0, 0.0, 0.0, 0.0], sensor_target=[0.3, 0.5, 0.81])
     if cones:
-        # the sensor (body x) starts on the far side of a cone from its target: the path touches it
+        # the sensor (body x) starts on the far side of a cone from its target: the path touches it;
+        # and a cone opposite the path, which it clears: the routes of inactive cones (the exact
+        # solver without them), the eigenaxis baseline and fallback where the path clears them
         axis = np.array([0.55, 0.25, 0.45])
-        base = base.replace(cones=[Cone(axis / np.linalg.norm(axis), 0.3)])
+        away = -(base.start_direction + base.target_direction)
+        return [base.replace(cones=[Cone(axis / np.linalg.norm(axis), 0.3)]),
+                base.replace(cones=[Cone(away / np.linalg.norm(away), 0.3)])]
     return [base]
 
 
@@ -66,10 +73,11 @@ def _load_kind(kind: tuple) -> None:
     from .collocation import load_replay_kernels
     for prob in _representatives(kind):
         # the default route (the learned guess where a shipped model covers the kind); the
-        # eigenaxis slew (``auto``'s baseline and the fallback) where it is defined. Loading is
+        # eigenaxis slew (``auto``'s baseline and the fallback, for every kind since session 35:
+        # pointing targets, and cones where its path clears them). Loading is
         # an optimisation: a representative solve that raises (a damaged model file, a patched
         # route in a test) must not fail the user's solve; what it did not load loads later
-        for kw in ([{}, {"method": "eigenaxis"}] if kind[1] == "full" and not kind[2] else [{}]):
+        for kw in ({}, {"method": "eigenaxis"}):
             try:
                 solve(prob, **kw)
             except Exception as e:      # noqa: BLE001 - see above
