@@ -166,7 +166,18 @@ def read(path, allow_duplicates=False):
 
 
 def read_meta(path) -> dict:
-    return read(path, allow_duplicates=True)[0]
+    """The metadata of a dataset file: its first line only (the records are not read)."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline()
+    except FileNotFoundError:
+        raise
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot read: {e.strerror or e}") from None
+    meta = _scan_bytes(first, path).meta
+    if meta is None:
+        raise DatasetError(f"{path}: not a slew dataset file (no metadata line)")
+    return meta
 
 
 def load(path, only_success: bool = False) -> list:

@@ -51,19 +51,6 @@ def exact_records(paths, family, counts):
                 yield path, r
 
 
-def file_meta(path) -> dict:
-    """The metadata of a dataset file (its first line), without reading its records."""
-    with open(path, "rb") as f:
-        first = f.readline()
-    try:
-        meta = json.loads(first)["_meta"]
-    except (ValueError, KeyError, TypeError):
-        meta = None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{path}: not a slew dataset file (no metadata line)")
-    return meta
-
-
 # --------------------------------------------------------------------------- the config's domain
 # A model's card claims the config's ``domain`` (what WarmStartModel.covers and
 # ConeWarmStartModel.covers accept); the data must be drawn from that domain, all of it: data from
@@ -173,7 +160,7 @@ def check_domain(paths, domain: dict) -> None:
         return
     spans = []
     for path in paths:
-        span = data_span(file_meta(path).get("distribution") or {})
+        span = data_span(ds.read_meta(path).get("distribution") or {})
         bad = _outside(span, domain)
         if bad:
             field, what = bad[0]
@@ -195,7 +182,7 @@ def check_distinct(paths) -> None:
     seen = {}
     for path in paths:
         try:
-            meta = file_meta(path)
+            meta = ds.read_meta(path)
         except ValueError as e:      # the first look at --data's files: name the option
             raise ValueError(f"--data: {e}") from None
         key = json.dumps([meta.get("family"), meta.get("seed"), meta.get("distribution")], sort_keys=True)

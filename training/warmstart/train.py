@@ -31,7 +31,8 @@ import time
 import numpy as np
 import yaml
 
-from .data import check_distinct, check_domain, file_meta, split, training_arrays
+from ..dataset import read_meta
+from .data import check_distinct, check_domain, split, training_arrays
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
 
@@ -256,7 +257,7 @@ def data_files(data_paths, sha256) -> list:
     are these)."""
     out = []
     for path, sha in zip(data_paths, sha256):
-        meta = file_meta(path)
+        meta = read_meta(path)
         out.append({"file": os.path.basename(path), "sha256": sha, "family": meta.get("family"),
                     "seed": meta.get("seed"), "distribution": meta.get("distribution")})
     return out
