@@ -235,11 +235,9 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         raise ValueError(("qf" if prob.qf is not None else "sensor_target") + ", omegaf: the target state is the "
                          "start state (the same attitude and rate): tf = 0, nothing to solve")
     reserved = 0.0
-    if fallback == "eigenaxis" and "time_budget" in options and eigenaxis_inapplicable(prob) is None \
-            and (not prob.cones or math.isfinite(baseline_time(prob))):
+    if fallback == "eigenaxis" and "time_budget" in options and _fallback_flyable(prob):
         # the fallback is planned after the route: its time comes out of the route's budget, so
-        # that the answer, whichever it is, is there within the budget (with cones only where its
-        # path keeps clear of them: elsewhere it would fail its clearance check, for nothing)
+        # that the answer, whichever it is, is there within the budget
         budget = float(options["time_budget"])
         reserved = min(FALLBACK_RESERVE, FALLBACK_RESERVE_SHARE * budget)
         options["time_budget"] = budget - reserved
@@ -496,15 +494,20 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if fallback == "eigenaxis" and not sol.success:
         end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf
         sol = _eigenaxis_fallback(prob, sol, t0, reserved, end)
-    elif not sol.success and method != "eigenaxis" and eigenaxis_inapplicable(prob) is None \
-            and (not prob.cones or math.isfinite(baseline_time(prob))):
-        # a user with a slew to fly and no verified answer should learn that one is offered (with
-        # cones, where the eigenaxis path keeps clear of them)
+    elif not sol.success and method != "eigenaxis" and _fallback_flyable(prob):
+        # a user with a slew to fly and no verified answer should learn that one is offered
         text = sol.message.rstrip()
         sol.message = (text + ("" if text.endswith((".", ")")) else ".")
                        + " No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
                        "baseline_tf), checked by its own replay, not time-optimal.")
     return sol
+
+
+def _fallback_flyable(prob) -> bool:
+    """Whether the eigenaxis fallback gives ``prob`` a slew to fly: a problem at rest, and with
+    cones one whose eigenaxis path keeps clear of them (``baseline_time``'s rule; elsewhere the
+    slew would fail its clearance check, so no budget is kept for it and none is offered)."""
+    return eigenaxis_inapplicable(prob) is None and (not prob.cones or math.isfinite(baseline_time(prob)))
 
 
 def _fallback_grid(prob, left=math.inf):

@@ -234,7 +234,7 @@ class _Template:
         # Hermite interpolant of (ω_k, ω̇_k, ω_k+1, ω̇_k+1), whose Bernstein coefficients are
         # ω_k, ω_k + h ω̇_k / 3, ω_k+1 - h ω̇_k+1 / 3, ω_k+1: bounding the inner two (the outer
         # ones are the node values, box-bounded) keeps the whole cubic within the limit
-        box, norm = (rate, False) if isinstance(rate, bool) else rate
+        box, norm = rate
         if box or norm:
             hh = SX.sym("hh")
             wd_k = f(xk, uk, J)[4:7]

@@ -27,7 +27,8 @@ import time
 import numpy as np
 
 from slew_env import SlewProblem
-from slew_env.core.quaternion import qerror_angle
+from slew_env.core.cones import angle_between
+from slew_env.core.quaternion import qerror_angle, qrotate
 from slew_env.checks import is_integer
 from .attitude_bvp import AttitudeBVP
 from .eigenaxis import (BASELINE_CLEARANCE, _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time,
@@ -162,7 +163,8 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
                                   np.ascontiguousarray(acc, float), np.ascontiguousarray(a, float),
                                   np.ascontiguousarray(c, float), J, substeps)
     qT = xf[0:4] / np.linalg.norm(xf[0:4])
-    att = AttitudeBVP(target.replace(cones=())).pointing_error(qT) if pointing else float(qerror_angle(qT, prob.qf))
+    att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction)) if pointing
+           else float(qerror_angle(qT, prob.qf)))
     rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
     w_scale = max(1.0, float(np.max(np.abs(rate))))
     ends = np.vstack([acc[:, None] * a + s[:-1, None] * c, acc[:, None] * a + s[1:, None] * c])
