@@ -105,7 +105,7 @@ def build_spec(args):
 
 
 def run(args):
-    from .generate import generate
+    from .generate import generate, usable_cores
 
     spec = build_spec(args)
     # as train and train-rl make their --out: the README's `-o data/a.jsonl` on a fresh clone
@@ -114,7 +114,7 @@ def run(args):
         os.makedirs(out_dir, exist_ok=True)
     except OSError as e:
         raise ValueError(f"-o/--output: cannot create the directory {out_dir!r}: {e.strerror or e}") from None
-    cores = _usable_cores()
+    cores = usable_cores()
     if args.backend == "local" and args.workers is not None and args.workers > cores:
         # wall-clock time budgets then cut solves short, and their failure records are kept
         print(f"slew generate: warning: --workers {args.workers} is more than the {cores} usable core(s); each "
@@ -151,9 +151,3 @@ def run(args):
         return 128 + int(s.signal or 2) if s.interrupted else 1
     return 0
 
-
-def _usable_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1

@@ -360,17 +360,19 @@ class _StopSignals:
         self.signum = signum
         raise KeyboardInterrupt
 
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handler)
+            self._old = {sig: signal.getsignal(sig) for sig in self.SIGNALS}
+            self.rearm()
         return self
 
     def rearm(self):
-        """Set the handlers again where something replaced them (``ray.init`` sets its own
-        SIGTERM handler: a SIGTERM then ended the run with exit 1 and no summary)."""
+        """Set the handlers (again, where something replaced them: ``ray.init`` sets its own
+        SIGTERM handler, and a SIGTERM then ended the run with exit 1 and no summary)."""
         if self._old:
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            for sig in self.SIGNALS:
                 signal.signal(sig, self._handler)
 
     def __exit__(self, *exc):
@@ -391,7 +393,8 @@ def _worker_init(parent_pid):
         os._exit(1)
 
 
-def _default_workers():
+def usable_cores() -> int:
+    """The cores this process may run on (the local pool's default size)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:
@@ -446,11 +449,11 @@ def generate(spec: GenerationSpec, path, workers: Optional[int] = None, backend:
                 if todo:
                     if backend == "ray":
                         _run_ray(spec, todo, write, workers, address, solve_fn, window, summary, stop.rearm)
-                    elif (workers or _default_workers()) == 1 or len(todo) == 1:
+                    elif (workers or usable_cores()) == 1 or len(todo) == 1:
                         for i in todo:
                             write(solve_task(spec, i, solve_fn))
                     else:
-                        _run_local(spec, todo, write, workers or _default_workers(), solve_fn, window, summary)
+                        _run_local(spec, todo, write, workers or usable_cores(), solve_fn, window, summary)
         except KeyboardInterrupt:
             summary.interrupted = True
             summary.signal = stop.signum if stop.hit else int(signal.SIGINT)
