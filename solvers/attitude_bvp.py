@@ -20,10 +20,12 @@ Boundary residuals: ``s · Im(qf* ⊗ q(tf))`` with ``s`` the sign of the scalar
 
 Pointing-only targets (``sensor_target`` given, roll about the sensor free). The final
 attitude must put the body sensor ``s`` on the inertial target ``d``: ``R(q)ᵀ d = s``, two
-conditions, written ``e₁·R(q)ᵀd = 0``, ``e₂·R(q)ᵀd = 0`` with ``e₁, e₂ ⊥ s`` (the antipodal
-solution ``R(q)ᵀd = -s`` is rejected by the verification). The third attitude condition is
-the transversality condition of the free roll: the terminal set is the circle
-``q ⊗ exp(φ/2 [0, s])``, whose tangent is ``q ⊗ [0, s]``, and ``λq(tf)`` must be orthogonal
+conditions, written ``e₁·R(q)ᵀd = 0``, ``e₂·R(q)ᵀd = 0`` with ``e₁, e₂ ⊥ s``. These also hold
+at the antipode ``R(q)ᵀd = -s``, which the verification rejects; with ``stereographic = True``
+they are written ``2 E R(q)ᵀd / (1 + s·R(q)ᵀd) = 0`` instead, zero only on the target's side
+(``core.pointing``; the multi-start retries a candidate that reached the antipode this way).
+The third attitude condition is the transversality condition of the free roll: the terminal
+set is the circle ``q ⊗ exp(φ/2 [0, s])``, whose tangent is ``q ⊗ [0, s]``, and ``λq(tf)`` must be orthogonal
 to it::
 
     λq(tf) · (q(tf) ⊗ [0, s]) = Im(q(tf)* ⊗ λq(tf)) · s = μ(tf) · s = 0,
@@ -170,6 +172,9 @@ class AttitudeBVP:
         self.umax = problem.torque_max / umax
         self.q0 = problem.q0.copy()
         self.pointing = problem.qf is None
+        # the pointing residual's form (``core.pointing``): the plain one unless a candidate
+        # converged to the antipode (``multistart``)
+        self.stereographic = False
         if self.pointing:
             self.s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
             self.d_i = np.asarray(problem.sensor_target, float) / np.linalg.norm(problem.sensor_target)
@@ -301,7 +306,7 @@ class AttitudeBVP:
     def _terminal_pointing(self, y):
         """Pointing (2), roll transversality (1) and rate (3) residuals with their gradients
         (``core.pointing.pointing_terminal``)."""
-        r, D = pointing_terminal(y, self.d_i, self.s_b, self._e, self.wf)
+        r, D = pointing_terminal(y, self.d_i, self.s_b, self._e, self.wf, self.stereographic)
         return r, D, np.zeros(6)
 
     def pointing_error(self, q):

@@ -252,19 +252,11 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
     first_nfev = None       # propagations of the first verified built-in candidate's attempt
 
     nit = nfev = 0
-    tried = 0
-    found = []   # (T, attempt, tr, checks, source)
-    failures = []
-    last_verif_fail = None
-    for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
-                                     unusable=failures if options.get("model_guess") else None,
-                                     guess_only=bool(options.get("guess_only"))):
-        # the budget is checked between candidates, and the first one always starts; inside a
-        # candidate the Newton iterations stop at the deadline (the kernels were loaded before
-        # the clock started: ``kernel_loading``)
-        if tried > 0 and time.perf_counter() > deadline:
-            break
-        tried += 1
+
+    def attempt(z, T, st, src):
+        """One candidate's Newton path from ``(z, T)``, then, if it converged, the verification of
+        its extremal: ``(attempt, path_cost, ok, checks, text, trajectory)``."""
+        nonlocal nit, nfev
         # structure templates, model guesses (learned, nearest-neighbour) and the KKT costates of
         # a switch-time optimisation carry a full switching structure: straight to the
         # switch-time Newton, no smoothing path
@@ -287,8 +279,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         nit += a.nit
         nfev += a.nfev
         if not a.success:
-            failures.append(f"{src}: {a.message}")
-            continue
+            return a, path_cost, False, {}, a.message, None
         if per_axis:
             bvp.set_mode("bang")
         else:
@@ -297,6 +288,45 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         reuse = a.trajectory if (per_axis and n_dense == DENSE_STEPS) else None
         ok, checks, text, tr = verify(bvp, a.z, a.T, a.structure, tols=tols, n_dense=n_dense, trajectory=reuse)
         nfev += 2
+        return a, path_cost, ok, checks, text, tr
+
+    tried = 0
+    found = []   # (T, attempt, tr, checks, source)
+    failures = []
+    last_verif_fail = None
+    antipodal = []      # candidates whose extremal put the sensor on the target's antipode
+
+    def candidates():
+        yield from _candidates(bvp, guess, max_candidates, seed, per_axis,
+                               unusable=failures if options.get("model_guess") else None,
+                               guess_only=bool(options.get("guess_only")))
+        if found or not antipodal or time.perf_counter() > deadline:
+            return
+        # the antipode is a root of the plain pointing residual; the stereographic one has none
+        # there (``core.pointing``), so with no verified extremal the candidates run again with
+        # it (an outside replay: on 3 of 17 pointing slews every converged candidate ended at
+        # the antipode). Only then: it changes the Newton paths, and so which local extremals
+        # other slews' candidates reach.
+        bvp.stereographic = True
+        for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
+                                         unusable=[] if options.get("model_guess") else None,
+                                         guess_only=bool(options.get("guess_only"))):
+            yield z, T, st, f"{src} (stereographic pointing residual)"
+
+    for z, T, st, src in candidates():
+        # the budget is checked between candidates, and the first one always starts; inside a
+        # candidate the Newton iterations stop at the deadline (the kernels were loaded before
+        # the clock started: ``kernel_loading``)
+        if tried > 0 and time.perf_counter() > deadline:
+            break
+        tried += 1
+        a, path_cost, ok, checks, text, tr = attempt(z, T, st, src)
+        if (bvp.pointing and a.success and not ok
+                and checks.get("boundary_attitude_error", {}).get("value", 0.0) > 0.5 * math.pi):
+            antipodal.append(src)
+        if not a.success:
+            failures.append(f"{src}: {a.message}")
+            continue
         if not ok:
             last_verif_fail = (a, tr, checks, text, src)
             failures.append(f"{src}: {text}")
@@ -315,6 +345,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
             beats_baseline = not (Ts[0] > near_baseline(Ts[0]) * (1 + 1e-7))
             if len(Ts) >= 2 and abs(Ts[1] - Ts[0]) <= 1e-7 * Ts[0] and beats_baseline:
                 break
+    bvp.stereographic = False
     wall = time.perf_counter() - t_start
     if found:
         near_baseline(min(f[0] for f in found))

@@ -4,7 +4,11 @@ With the sensor ``s`` (body), the target direction ``d`` (inertial) and ``E`` (2
 orthonormal basis of the plane perpendicular to ``s``:
 
 * pointing (2): ``E d_b`` with ``d_b = R(q)ᵀ d = (q0² - v·v) d + 2 v (v·d) - 2 q0 (v × d)``
-  (zero when the sensor points at the target, on the right side: ``d_b = s``);
+  (zero when the sensor points at the target, ``d_b = s``, and also at the antipode
+  ``d_b = -s``); or, with ``stereographic``, ``2 E d_b / (1 + s·d_b)``, the stereographic
+  projection of ``d_b`` from ``-s``: ``2 tan(θ/2)`` for a sensor ``θ`` off the target, zero only
+  at ``d_b = s`` and without bound towards the antipode. The two agree to second order near
+  the target;
 * roll transversality (1): ``Im(q* ⊗ λq) · s``, the costate conjugate to the free roll about
   the sensor axis, with ``Im(q* ⊗ λq) = q0 λv - λ0 v - v × λv``;
 * the final rate (3): ``ω - ω_f``.
@@ -23,7 +27,7 @@ def _cross(a, b):
 
 
 @njit(cache=True)
-def pointing_terminal(y, d, sb, E, wf):
+def pointing_terminal(y, d, sb, E, wf, stereographic=False):
     """``(r (6), D (6, 14))``: pointing, roll transversality and rate residuals (module docstring)."""
     q0 = y[0]
     v = y[1:4].copy()
@@ -41,8 +45,15 @@ def pointing_terminal(y, d, sb, E, wf):
         ddb[:, 1 + j] = -2.0 * v[j] * d + 2.0 * ej * vd + 2.0 * v * d[j] - 2.0 * q0 * _cross(ej, d)
     r = np.empty(6)
     D = np.zeros((6, 14))
-    r[0:2] = E @ db
-    D[0:2, 0:4] = E @ ddb
+    if stereographic:
+        # the floor on 1 + s·d_b only keeps the exact antipode finite
+        den = max(1.0 + sb[0] * db[0] + sb[1] * db[1] + sb[2] * db[2], 1e-12)
+        edb = E @ db
+        r[0:2] = 2.0 * edb / den
+        D[0:2, 0:4] = 2.0 * (E @ ddb) / den - 2.0 * np.outer(edb, sb @ ddb) / (den * den)
+    else:
+        r[0:2] = E @ db
+        D[0:2, 0:4] = E @ ddb
     im = q0 * lv - l0 * v - _cross(v, lv)
     r[2] = im[0] * sb[0] + im[1] * sb[1] + im[2] * sb[2]
     D[2, 0] = lv[0] * sb[0] + lv[1] * sb[1] + lv[2] * sb[2]
