@@ -300,10 +300,13 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         yield from _candidates(bvp, guess, max_candidates, seed, per_axis,
                                unusable=failures if options.get("model_guess") else None,
                                guess_only=bool(options.get("guess_only")))
-        if found or not antipodal or time.perf_counter() > deadline:
+        # (an extremal slower than the eigenaxis slew is no answer: status 4; the baseline is NaN
+        # with rates at the ends, where every verified extremal counts)
+        if (any(not (f[0] > baseline * (1 + 1e-7)) for f in found) or not antipodal
+                or time.perf_counter() > deadline):
             return
         # the antipode is a root of the plain pointing residual; the stereographic one has none
-        # there (``core.pointing``), so with no verified extremal the candidates run again with
+        # there (``core.pointing``), so with no verified answer the candidates run again with
         # it (an outside replay: on 3 of 17 pointing slews every converged candidate ended at
         # the antipode). Only then: it changes the Newton paths, and so which local extremals
         # other slews' candidates reach.

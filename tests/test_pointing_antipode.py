@@ -102,3 +102,18 @@ def test_indirect_reaches_the_target_where_the_plain_residual_found_only_its_ant
     # a local extremal (collocation and auto reach 2.2331 s here; README, known limitations)
     assert s.tf == pytest.approx(2.855342278, rel=1e-6)
     assert s.tf <= s.baseline_tf
+
+
+def test_the_second_pass_runs_when_only_extremals_slower_than_the_eigenaxis_slew_were_found():
+    # an outside replay's case (session 36, own08): a first-pass candidate reached the antipode
+    # and the only verified extremal was slower than the eigenaxis slew (status 4, 6.1221 s
+    # against 5.3348 s); the second pass finds one faster than it
+    p = SlewProblem(inertia=[1.0, 1.0, 1.0], torque_max=[0.5, 1.0, 0.25],
+                    q0=[-0.518423265212339, -0.8147224431178001, 0.23255352225114645, -0.1156871559652387],
+                    sensor_axis=[0.4994335920271589, 0.7344094120138784, -0.4595746976284475],
+                    sensor_target=[0.7947851734097525, 0.21394958964756916, -0.5679279014255829])
+    s = solve(p, method="indirect")
+    assert s.success, s.message
+    assert "stereographic pointing residual" in s.guess
+    assert s.tf == pytest.approx(4.137562, rel=1e-6) and s.tf < s.baseline_tf
+    assert s.verification["boundary_attitude_error"]["value"] < 1e-8
