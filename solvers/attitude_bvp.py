@@ -23,10 +23,10 @@ attitude must put the body sensor ``s`` on the inertial target ``d``: ``R(q)ᵀ 
 conditions, written ``e₁·R(q)ᵀd = 0``, ``e₂·R(q)ᵀd = 0`` with ``e₁, e₂ ⊥ s``. These also hold
 at the antipode ``R(q)ᵀd = -s``, which the verification rejects; with ``stereographic = True``
 they are written ``2 E R(q)ᵀd / (1 + s·R(q)ᵀd) = 0`` instead, zero only on the target's side
-(``core.pointing``; the multi-start retries a candidate that reached the antipode this way).
-The third attitude condition is the transversality condition of the free roll: the terminal
-set is the circle ``q ⊗ exp(φ/2 [0, s])``, whose tangent is ``q ⊗ [0, s]``, and ``λq(tf)`` must be orthogonal
-to it::
+(``core.pointing``; the multi-start runs its candidates again this way when one reached the
+antipode and none gave an answer). The third attitude condition is the transversality
+condition of the free roll: the terminal set is the circle ``q ⊗ exp(φ/2 [0, s])``, whose
+tangent is ``q ⊗ [0, s]``, and ``λq(tf)`` must be orthogonal to it::
 
     λq(tf) · (q(tf) ⊗ [0, s]) = Im(q(tf)* ⊗ λq(tf)) · s = μ(tf) · s = 0,
 
@@ -172,8 +172,8 @@ class AttitudeBVP:
         self.umax = problem.torque_max / umax
         self.q0 = problem.q0.copy()
         self.pointing = problem.qf is None
-        # the pointing residual's form (``core.pointing``): the plain one unless a candidate
-        # converged to the antipode (``multistart``)
+        # the pointing residual's form (``core.pointing``): the plain one, except in the
+        # multi-start's second pass after a candidate converged to the antipode
         self.stereographic = False
         if self.pointing:
             self.s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)

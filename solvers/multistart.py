@@ -19,7 +19,7 @@ from .eigenaxis_answer import FINE_GATE, fine_eigenaxis_time
 from .solution import (STATUS_BUDGET_EXHAUSTED, STATUS_MESSAGES, STATUS_NOT_CONVERGED, STATUS_SUCCESS,
                        STATUS_VERIFICATION_FAILED, STATUS_WORSE_THAN_BASELINE, SlewSolution)
 from .switch_time import Structure
-from .verify import DENSE_STEPS, verify
+from .verify import DENSE_STEPS, sensor_reversed, verify
 
 # a structure template's switch-time Newton stops when 10 iterations have not brought its residual
 # below 0.1 of the first: on 100 random slews (seeds 1 and 2 of bench_solver, where the rule was
@@ -296,10 +296,13 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
     last_verif_fail = None
     antipodal = []      # candidates whose extremal put the sensor on the target's antipode
 
+    def listed(unusable):
+        return _candidates(bvp, guess, max_candidates, seed, per_axis,
+                           unusable=unusable if options.get("model_guess") else None,
+                           guess_only=bool(options.get("guess_only")))
+
     def candidates():
-        yield from _candidates(bvp, guess, max_candidates, seed, per_axis,
-                               unusable=failures if options.get("model_guess") else None,
-                               guess_only=bool(options.get("guess_only")))
+        yield from listed(failures)
         # (an extremal slower than the eigenaxis slew is no answer: status 4; the baseline is NaN
         # with rates at the ends, where every verified extremal counts)
         if (any(not (f[0] > baseline * (1 + 1e-7)) for f in found) or not antipodal
@@ -311,9 +314,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         # the antipode). Only then: it changes the Newton paths, and so which local extremals
         # other slews' candidates reach.
         bvp.stereographic = True
-        for z, T, st, src in _candidates(bvp, guess, max_candidates, seed, per_axis,
-                                         unusable=[] if options.get("model_guess") else None,
-                                         guess_only=bool(options.get("guess_only"))):
+        for z, T, st, src in listed([]):      # (unusable ones were named in the first pass)
             yield z, T, st, f"{src} (stereographic pointing residual)"
 
     for z, T, st, src in candidates():
@@ -324,8 +325,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
             break
         tried += 1
         a, path_cost, ok, checks, text, tr = attempt(z, T, st, src)
-        if (bvp.pointing and a.success and not ok
-                and checks.get("boundary_attitude_error", {}).get("value", 0.0) > 0.5 * math.pi):
+        if sensor_reversed(checks):
             antipodal.append(src)
         if not a.success:
             failures.append(f"{src}: {a.message}")

@@ -113,6 +113,15 @@ def end_error(bvp, x):
     return max(bvp.attitude_error(x[0:4]), float(np.linalg.norm(x[4:7] - bvp.wf)))
 
 
+SENSOR_REVERSED = "the sensor ends pointing away from the target"
+
+
+def sensor_reversed(checks):
+    """Did a pointing target's extremal end with the sensor on the target's antipode (more than
+    90° off; ``boundary_checks``' note)? ``False`` for empty checks (no extremal to check)."""
+    return checks.get("boundary_attitude_error", {}).get("note") == SENSOR_REVERSED
+
+
 def boundary_checks(bvp, yT, tols):
     """``boundary_attitude_error``, ``boundary_rate_error`` and, for a pointing target,
     ``roll_transversality`` at the final augmented state ``yT`` (nondimensional)."""
@@ -124,7 +133,7 @@ def boundary_checks(bvp, yT, tols):
     if bvp.pointing and att > 0.5 * math.pi:
         # the pointing residual (the sensor parallel to the target) is also zero with the sensor
         # reversed, where a Newton iteration can end: say so, an angle of 3.14 alone does not
-        checks["boundary_attitude_error"]["note"] = "the sensor ends pointing away from the target"
+        checks["boundary_attitude_error"]["note"] = SENSOR_REVERSED
     checks["boundary_rate_error"] = make_check(rate_nd / bvp.tau, tols["boundary_rate_error"] / bvp.tau,
                                                rate_nd <= tols["boundary_rate_error"])
     if bvp.pointing:
