@@ -38,11 +38,12 @@ class EigenaxisSlew:
     dtheta: Optional[np.ndarray] = None     # the angle of each piece between samples (θ̈ constant on it)
 
 
-def _phase_plane(problem: SlewProblem):
+def _phase_plane(problem: SlewProblem, axis_angle=None):
     """``(n, θ, a, c, s_max)``: eigenaxis and angle, torque per unit acceleration ``a = J n``
     and per unit speed² ``c = n × Jn``, and the largest admissible ``s = θ̇²`` (the
-    maximum-velocity curve of the bound, capped by the rate limit)."""
-    n, th = eigenaxis_axis_angle(problem)
+    maximum-velocity curve of the bound, capped by the rate limit). ``axis_angle``: ``(n, θ)``
+    given (a rotation other than ``q0`` to ``qf``: the legs of a waypoint slew)."""
+    n, th = eigenaxis_axis_angle(problem) if axis_angle is None else axis_angle
     J, U, p = problem.inertia, problem.torque_max, problem.torque_norm
     a = np.ascontiguousarray(J * n, float)
     c = np.cross(n, J * n)
@@ -169,7 +170,14 @@ def eigenaxis_time(problem: SlewProblem, n_grid=4000) -> float:
     (``n × Jn = 0``) the exact bang-(coast-)bang closed form, which the grid (1,000 steps)
     overestimates by up to ~7e-6 where a rate cap starts (under 1e-7 without a rate limit)."""
     problem = _checked(problem)
-    n, th, a, c, s_max = _phase_plane(problem)
+    return axis_time(problem, *eigenaxis_axis_angle(problem), n_grid=n_grid)
+
+
+def axis_time(problem: SlewProblem, n, th, n_grid=1000) -> float:
+    """``eigenaxis_time`` of the rest-to-rest rotation by ``th`` about the body axis ``n`` (unit)
+    under ``problem``'s inertia, torque bound and rate limit (its attitudes, rates and cones are
+    not read): the planner of waypoint slews times its candidate legs with it."""
+    n, th, a, c, s_max = _phase_plane(problem, (np.asarray(n, float), float(th)))
     if th == 0.0:
         return 0.0
     U = np.ascontiguousarray(problem.torque_max, float)

@@ -15,7 +15,8 @@ verification replays the control (RK4, ``core.control_replay``) and checks the b
 (1e-8, as for exact answers), the torque bound at every step's ends and the rate limit.
 A pointing target is flown to its reference attitude (the smallest rotation that takes the
 sensor onto the target); keep-out cones are not avoided but checked: the answer is verified
-where the path clears them (``cone_clearance``, certified between samples) and fails otherwise.
+where the path clears them (``cone_clearance``, certified between samples) and fails otherwise
+(``solve(method="eigenaxis")`` then flies round them through waypoints: ``waypoint_slew``).
 It is not an extremal of the time-optimal problem: ``exact`` is ``False``, ``costate0`` is NaN
 and ``switch_times`` are empty (the torque is not bang-bang per axis).
 """
@@ -86,6 +87,81 @@ def _not_compared(prob):
     return eigenaxis_inapplicable(prob)
 
 
+class EigenaxisLeg:
+    """One rest-to-rest eigenaxis rotation of a full-attitude problem ``prob`` (no cones), planned
+    on ``n_grid`` angle steps: its phase-plane profile, control, dense samples and replay (the
+    answer of ``eigenaxis_answer``, and each leg of a waypoint slew, ``waypoint_slew``)."""
+
+    def __init__(self, prob: SlewProblem, n_grid: int):
+        self.n, self.th, self.a, self.c, _ = _phase_plane(prob)
+        es = eigenaxis_slew(prob, n_grid)
+        self.t, self.rate = es.t, es.rate
+        self.s = self.rate ** 2
+        # per piece (the grid steps, split where the rate cap starts)
+        self.acc = (self.s[1:] - self.s[:-1]) / (2.0 * es.dtheta)
+        self.theta = es.theta
+        self.q0 = np.asarray(prob.q0, float)
+        self.J = np.asarray(prob.inertia, float)
+        self.U = np.asarray(prob.torque_max, float)
+        self.p = float(prob.torque_norm)
+        self.tf = float(self.t[-1])
+        self.peak_rate = float(np.max(np.abs(self.rate)))
+
+    def _locate(self, tq):
+        t = self.t
+        tq = np.clip(np.asarray(tq, dtype=float), 0.0, t[-1])
+        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, t.size - 2)
+        return k, tq - t[k]
+
+    def control(self, tq):
+        tq = np.asarray(tq, dtype=float)
+        k, tau = self._locate(tq)
+        r = self.rate[k] + self.acc[k] * tau
+        return self.acc[k][..., None] * self.a + (r * r)[..., None] * self.c
+
+    def samples(self):
+        """``(t, q, omega, u)``: the exact profile at ``N_DENSE`` uniform instants and twice at each
+        breakpoint (where the acceleration jumps: from speeding up to braking, the ends of a
+        coast), first with the torque before it, then after, so that the samples flown linearly
+        between them are the slew (``control_law`` "linear-samples"; within ~1e-7 rad of the
+        target, tests)."""
+        t, acc, rate = self.t, self.acc, self.rate
+        jump = np.abs(np.diff(acc)) > 1e-2 * max(float(np.max(np.abs(acc))), 1e-300)
+        breaks = t[1:-1][jump]
+        grid = np.linspace(0.0, float(t[-1]), N_DENSE + 1)
+        grid = grid[np.min(np.abs(grid[:, None] - breaks[None, :]), axis=1, initial=np.inf) > 1e-9 * t[-1]]
+        td = np.sort(np.concatenate([grid, breaks, breaks]), kind="stable")
+        k, tau = self._locate(td)
+        # the first of each pair of equal instants takes the step before the breakpoint (its end)
+        first = np.concatenate([td[1:] == td[:-1], [False]])
+        k = np.where(first, k - 1, k)
+        tau = np.where(first, td - t[np.clip(k, 0, None)], tau)
+        thd = self.theta[k] + rate[k] * tau + 0.5 * acc[k] * tau ** 2
+        rd = rate[k] + acc[k] * tau
+        qd = eigenaxis_path(self.q0, self.n, thd)
+        ud = acc[k][:, None] * self.a + (rd * rd)[:, None] * self.c
+        return td, qd, rd[:, None] * self.n[None, :], ud
+
+    def replay(self, x0) -> np.ndarray:
+        """The state at the end of the control flown (RK4, ``core.control_replay``) from ``x0``."""
+        from .core.control_replay import replay_eigenaxis_profile
+        # RK4 steps a piece: 4, or more on a coarse profile (its error, ~(steps)⁻⁴, had failed the
+        # 1e-8 boundary check at n_grid ≤ 6 with 4 a piece, on a profile that is exact)
+        substeps = max(4, -(-REPLAY_MIN_STEPS // (self.t.size - 1)))
+        return replay_eigenaxis_profile(np.ascontiguousarray(x0, float), np.ascontiguousarray(self.t, float),
+                                        np.ascontiguousarray(self.rate, float), np.ascontiguousarray(self.acc, float),
+                                        np.ascontiguousarray(self.a, float), np.ascontiguousarray(self.c, float),
+                                        self.J, substeps)
+
+    def bound_ratio(self) -> float:
+        """The largest torque over the bound at both ends of every step (the torque is affine in
+        ``θ̇²`` between them, so this bounds the whole profile)."""
+        acc, s = self.acc, self.s
+        ends = np.vstack([acc[:, None] * self.a + s[:-1, None] * self.c, acc[:, None] * self.a + s[1:, None] * self.c])
+        ratio = np.abs(ends) / self.U
+        return float(np.max(ratio)) if math.isinf(self.p) else float(np.max(np.sum(ratio ** self.p, axis=1) ** (1.0 / self.p)))
+
+
 def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     """The fastest eigenaxis slew of a rest-to-rest ``problem`` (module docstring);
     ``ValueError`` for a problem not at rest. ``n_grid``: angle steps of the profile (default
@@ -114,78 +190,32 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
         n_grid = N_GRID if math.isinf(prob.torque_norm) or not np.any(c) else N_GRID_PNORM_GYRO
     if not is_integer(n_grid) or n_grid < 2:
         raise ValueError(f"n_grid: must be an integer ≥ 2, got {n_grid!r}")
-    es = eigenaxis_slew(prob, n_grid)
-    t, rate = es.t, es.rate
-    s = rate ** 2
-    acc = (s[1:] - s[:-1]) / (2.0 * es.dtheta)     # per piece (the grid steps, split where the rate cap starts)
-    q0 = np.asarray(prob.q0, float)
-    J = np.asarray(prob.inertia, float)
-    U = np.asarray(prob.torque_max, float)
-    p = float(prob.torque_norm)
-    theta_k = es.theta
-
-    def locate(tq):
-        tq = np.clip(np.asarray(tq, dtype=float), 0.0, t[-1])
-        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, t.size - 2)
-        return k, tq - t[k]
-
-    def control(tq):
-        tq = np.asarray(tq, dtype=float)
-        k, tau = locate(tq)
-        r = rate[k] + acc[k] * tau
-        return acc[k][..., None] * a + (r * r)[..., None] * c
-
-    # dense samples: the exact profile, at N_DENSE uniform instants and twice at each breakpoint
-    # (where the acceleration jumps: from speeding up to braking, the ends of a coast), first with
-    # the torque before it, then after, so that the samples flown linearly between them are the
-    # slew (``control_law`` "linear-samples"; within ~1e-7 rad of the target, tests)
-    jump = np.abs(np.diff(acc)) > 1e-2 * max(float(np.max(np.abs(acc))), 1e-300)
-    breaks = t[1:-1][jump]
-    grid = np.linspace(0.0, float(t[-1]), N_DENSE + 1)
-    grid = grid[np.min(np.abs(grid[:, None] - breaks[None, :]), axis=1, initial=np.inf) > 1e-9 * t[-1]]
-    td = np.sort(np.concatenate([grid, breaks, breaks]), kind="stable")
-    k, tau = locate(td)
-    # the first of each pair of equal instants takes the step before the breakpoint (its end)
-    first = np.concatenate([td[1:] == td[:-1], [False]])
-    k = np.where(first, k - 1, k)
-    tau = np.where(first, td - t[np.clip(k, 0, None)], tau)
-    thd = theta_k[k] + rate[k] * tau + 0.5 * acc[k] * tau ** 2
-    rd = rate[k] + acc[k] * tau
-    qd = eigenaxis_path(q0, n, thd)
-    ud = acc[k][:, None] * a + (rd * rd)[:, None] * c
+    leg = EigenaxisLeg(prob, n_grid)
+    td, qd, wd, ud = leg.samples()
     # verification: replay, torque at both ends of every step, rate limit
-    from .core.control_replay import replay_eigenaxis_profile
-    x0 = np.concatenate([q0, np.zeros(3)])
-    # RK4 steps a piece: 4, or more on a coarse profile (its error, ~(steps)⁻⁴, had failed the
-    # 1e-8 boundary check at n_grid ≤ 6 with 4 a piece, on a profile that is exact)
-    substeps = max(4, -(-REPLAY_MIN_STEPS // (t.size - 1)))
-    xf = replay_eigenaxis_profile(x0, np.ascontiguousarray(t, float), np.ascontiguousarray(rate, float),
-                                  np.ascontiguousarray(acc, float), np.ascontiguousarray(a, float),
-                                  np.ascontiguousarray(c, float), J, substeps)
+    xf = leg.replay(np.concatenate([leg.q0, np.zeros(3)]))
     qT = xf[0:4] / np.linalg.norm(xf[0:4])
     att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction)) if pointing
            else float(qerror_angle(qT, prob.qf)))
     rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
-    w_scale = max(1.0, float(np.max(np.abs(rate))))
-    ends = np.vstack([acc[:, None] * a + s[:-1, None] * c, acc[:, None] * a + s[1:, None] * c])
-    ratio = np.abs(ends) / U
-    bound = float(np.max(ratio)) if math.isinf(p) else float(np.max(np.sum(ratio ** p, axis=1) ** (1.0 / p)))
+    w_scale = max(1.0, leg.peak_rate)
+    bound = leg.bound_ratio()
     checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
               "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
               "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
     if prob.has_rate_limit:
-        rl = prob.rate_limit_ratio(float(np.max(rate)) * n)
+        rl = prob.rate_limit_ratio(leg.peak_rate * leg.n)
         checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
     if target.cones:
         from .clearance import CLEARANCE_TOL, certified_min_margin
-        cert = certified_min_margin(target, td, qd, rd[:, None] * n[None, :])[1]
+        cert = certified_min_margin(target, td, qd, wd)[1]
         checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
         if cert < CLEARANCE_TOL:
             checks["cone_clearance"]["note"] = "the eigenaxis path takes the sensor into a keep-out cone"
     text = failure_text(checks)
     # tf is the duration of this profile exactly; tf_tol: its distance to the continuous
     # eigenaxis optimum, from a grid half as fine
-    tf = float(t[-1])
+    tf = leg.tf
     tf_tol = abs(tf - eigenaxis_slew(prob, max(2, n_grid // 2)).tf)
     msg = (f"The eigenaxis slew: about the body axis n = [{n[0]:.6g}, {n[1]:.6g}, {n[2]:.6g}] by "
            f"{math.degrees(th):.6g}°, the fastest within the bounds (phase-plane profile, {n_grid} steps), "
@@ -200,14 +230,14 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     return SlewSolution(not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0,
                         time.perf_counter() - t_start, tf=tf, tf_tol=tf_tol,
                         u_first=np.where(first > 0, 1.0, np.where(first < 0, -1.0, 0.0)),
-                        t=td, q=qd, omega=rd[:, None] * n[None, :], u=ud, costate=np.full((td.size, 7), np.nan),
+                        t=td, q=qd, omega=wd, u=ud, costate=np.full((td.size, 7), np.nan),
                         method="eigenaxis", route=f"eigenaxis slew (phase-plane profile, {n_grid} steps)",
                         guess="eigenaxis", n_candidates=1, candidates_tf=[round(tf, 9)],
                         # (with cones, as ``eigenaxis.baseline_time`` gives it: only where the path keeps
                         # BASELINE_CLEARANCE from every cone)
                         baseline_tf=tf if not target.cones or checks["cone_clearance"]["value"] >= BASELINE_CLEARANCE
                         else math.nan,
-                        verification=checks, problem=target, _control=control)
+                        verification=checks, problem=target, _control=leg.control)
 
 
 def eigenaxis_unless_faster(prob, tf):
