@@ -10,9 +10,9 @@ step) is expected; a solve that ignores its budget shows here as an overshoot of
                                       [--families full-attitude,pnorm,pointing-cones] [--fallback]
 
 ``--fallback``: ``fallback="eigenaxis"`` (the eigenaxis slew where the route gives no verified
-answer; not with collocation; with cones only where its path clears them, which the
-``pointing-cones`` family's cones across the short path rarely allow), and the count of fallback
-answers in the last column.
+answer; not with collocation; with cones directly where its path clears them, else through
+waypoints round them, which the ``pointing-cones`` family's cones across the short path always
+need), and the count of fallback answers in the last column.
 
 Families: ``full-attitude`` (per-axis bound, symmetric and asymmetric inertia), ``pnorm``
 (the same slews under the 2-norm bound), ``pointing-cones`` (pointing-only targets, 1-3 keep-out

@@ -58,6 +58,7 @@ from .blas_threads import single_threaded_blas
 from .kernel_loading import ensure_kernels
 from .guesses import Guess
 from .eigenaxis import baseline_time
+from . import waypoint_slew
 from .eigenaxis_answer import N_GRID, eigenaxis_answer, eigenaxis_inapplicable, no_slower_than_eigenaxis
 from .solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
 from .switch_time_opt import switch_time_applies
@@ -93,7 +94,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
 
     ``method``: ``"auto"`` (default), ``"indirect"``, ``"multiple-shooting"``,
     ``"collocation"`` (see the module docstring) or ``"eigenaxis"`` (the baseline planner's slew:
-    ``eigenaxis_answer``). ``guess``: a ``solvers.Guess``.
+    ``eigenaxis_answer``; with keep-out cones where its path enters one, rest-to-rest eigenaxis
+    legs through one or two waypoints round them, ``waypoint_slew``). ``guess``: a ``solvers.Guess``.
 
     ``warm_start``: where the first guess comes from when ``guess`` is not given
     (indirect routes and ``"auto"``): ``"default"`` (the shipped full-attitude model, for the
@@ -143,10 +145,11 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``fallback`` (default None): ``"eigenaxis"`` returns, where the route ends without a verified
     answer (the ``time_budget`` ran out, or nothing converged), the eigenaxis slew of a
     rest-to-rest problem (``method="eigenaxis"``, verified by its replay, not time-optimal;
-    12–24 ms for a per-axis bound; a pointing target at its reference attitude, and with
-    keep-out cones only where the slew's path clears them): a flyable answer for on-board use
-    under a hard budget. With a ``time_budget``, the route gets that budget less the fallback's
-    planning time (``FALLBACK_RESERVE``, 25 ms; at most half the budget), so that either answer
+    12–24 ms for a per-axis bound; a pointing target at its reference attitude; with keep-out
+    cones where its path enters one, the slew through waypoints round them, ``waypoint_slew``):
+    a flyable answer for on-board use under a hard budget. With a ``time_budget``, the route gets
+    that budget less the fallback's planning time (``FALLBACK_RESERVE``, 25 ms a leg of the slew;
+    at most half the budget), so that either answer
     is there within the budget, up to the route's own overshoot (one Newton iteration or IPOPT
     iteration); where less is left than its default profile takes, the fallback plans on fewer
     angle steps (``_fallback_grid``), down to a floor that is late below a few milliseconds of
@@ -239,7 +242,8 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         # the fallback is planned after the route: its time comes out of the route's budget, so
         # that the answer, whichever it is, is there within the budget
         budget = float(options["time_budget"])
-        reserved = min(FALLBACK_RESERVE, FALLBACK_RESERVE_SHARE * budget)
+        # (a waypoint slew around the cones plans one profile a leg)
+        reserved = min(FALLBACK_RESERVE * _fallback_legs(prob), FALLBACK_RESERVE_SHARE * budget)
         options["time_budget"] = budget - reserved
     if method != "eigenaxis":
         # an infeasible problem is an input error, found before any loading; the grid test
@@ -409,7 +413,8 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if method == "eigenaxis":
         if guess is not None:
             raise ValueError("guess: method='eigenaxis' plans the eigenaxis slew and takes no guess")
-        return eigenaxis_answer(prob)
+        # (with cones where the direct path enters one, the slew through waypoints around them)
+        return waypoint_slew.flyable_eigenaxis_answer(prob)
     t0 = time.perf_counter()
     warm = None
     info = {}
@@ -498,25 +503,36 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         # a user with a slew to fly and no verified answer should learn that one is offered
         text = sol.message.rstrip()
         sol.message = (text + ("" if text.endswith((".", ")")) else ".")
-                       + " No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
-                       "baseline_tf), checked by its own replay, not time-optimal.")
+                       + (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
+                          "baseline_tf), checked by its own replay, not time-optimal." if _fallback_legs(prob) == 1 else
+                          " No verified answer: fallback='eigenaxis' would return an eigenaxis slew through "
+                          "waypoints around the keep-out cones, checked by its own replay, not time-optimal."))
     return sol
 
 
 def _fallback_flyable(prob) -> bool:
     """Whether the eigenaxis fallback gives ``prob`` a slew to fly: a problem at rest, and with
-    cones one whose eigenaxis path keeps clear of them (``baseline_time``'s rule; elsewhere the
-    slew would fail its clearance check, so no budget is kept for it and none is offered)."""
-    return eigenaxis_inapplicable(prob) is None and (not prob.cones or math.isfinite(baseline_time(prob)))
+    cones one whose eigenaxis path keeps clear of them (``baseline_time``'s rule) or for which a
+    waypoint slew around them is found (``waypoint_slew.fallback_plan``; planned once, 2-25 ms,
+    before the route's clock starts). Elsewhere no budget is kept for it and none is offered."""
+    return eigenaxis_inapplicable(prob) is None and waypoint_slew.fallback_plan(prob) is not None
 
 
-def _fallback_grid(prob, left=math.inf):
+def _fallback_legs(prob) -> int:
+    """Eigenaxis profiles the fallback plans for ``prob``: 1, or one a leg of its waypoint slew."""
+    plan = waypoint_slew.fallback_plan(prob) if prob.is_rest_to_rest else "direct"
+    return plan.n_waypoints + 1 if isinstance(plan, waypoint_slew.WaypointPlan) else 1
+
+
+def _fallback_grid(prob, left=math.inf, legs=1):
     """The fallback profile's angle steps, ``left`` seconds before the budget ends: the planner's
     default (``N_GRID``), or ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound with a gyroscopic
     term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``, not below
-    ``FALLBACK_GRID_FLOOR``)."""
+    ``FALLBACK_GRID_FLOOR``). ``legs``: profiles sharing ``left`` (a waypoint slew's; under a
+    p-norm bound each is costed as one with a gyroscopic term, their axes being the legs')."""
     from .eigenaxis import _checked, _phase_plane, reference_problem
-    if not math.isinf(prob.torque_norm) and np.any(_phase_plane(_checked(reference_problem(prob)))[3]):
+    left = left / legs
+    if not math.isinf(prob.torque_norm) and (legs > 1 or np.any(_phase_plane(_checked(reference_problem(prob)))[3])):
         kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
     else:     # (a p-norm profile without a gyroscopic term is bang-coast-bang, exact on any grid)
         kind, grid = "no-gyro", N_GRID
@@ -537,8 +553,14 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSoluti
     if why is not None:
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {why}.)"
         return sol
+    plan = waypoint_slew.fallback_plan(prob)
     try:
-        eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
+        if isinstance(plan, waypoint_slew.WaypointPlan):
+            legs = plan.n_waypoints + 1
+            eig = waypoint_slew.waypoint_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter(), legs),
+                                                plan=plan)
+        else:
+            eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
     except ValueError as e:          # a zero slew: nothing to fly
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {e}.)"
         return sol
@@ -546,8 +568,9 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSoluti
         sol.message = f"{sol.message} (fallback 'eigenaxis' failed: {eig.message[:200]})"
         return sol
     kept = f" (planned in the {1e3 * reserved:.0f} ms of the budget kept for it)" if reserved else ""
+    what = "the eigenaxis slew" if eig.route.startswith("eigenaxis slew (") else eig.route
     eig.route = (f"{(sol.route or sol.method or 'the route')[:300]} → status {sol.status}, no verified "
-                 f"time-optimal answer → fallback: the eigenaxis slew{kept}")
+                 f"time-optimal answer → fallback: {what}{kept}")
     eig.message = (f"{eig.message} Returned as the fallback (fallback='eigenaxis'); the time-optimal route "
                    f"ended with status {sol.status}: {sol.message}")
     eig.nit, eig.nfev = eig.nit + sol.nit, eig.nfev + sol.nfev

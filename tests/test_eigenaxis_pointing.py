@@ -1,7 +1,7 @@
 """The eigenaxis slew of a pointing target and of a problem with keep-out cones
 (``method="eigenaxis"`` and ``fallback="eigenaxis"``): flown to the reference attitude, verified
-only where its path clears every cone (a GNC review: a 50 ms budget left pointing slews with
-nothing to fly)."""
+only where its path clears every cone, else round the cones through waypoints (a GNC review: a
+50 ms budget left pointing slews with nothing to fly)."""
 import math
 import time
 
@@ -73,16 +73,22 @@ def test_a_cone_off_the_path_is_certified_clear():
 
 
 def test_a_path_into_a_cone_fails_its_clearance_and_says_so():
+    from solvers.eigenaxis_answer import eigenaxis_answer
     mid = SENSOR + TARGET
     axis = mid / np.linalg.norm(mid)          # the cone sits on the arc's midpoint
     half = math.radians(10.0)
     assert _exact_margin(axis, half) == pytest.approx(-half, abs=1e-9)
-    sol = solvers.solve(_pointing(cones=[{"axis": axis, "half_angle": half}]), method="eigenaxis")
+    p = _pointing(cones=[{"axis": axis, "half_angle": half}])
+    sol = eigenaxis_answer(p)                 # the direct slew
     assert not sol.success and sol.status == 2
     check = sol.verification["cone_clearance"]
     assert not check["passed"] and check["value"] <= -half + 1e-9
     assert "cone_clearance" in sol.message and "keep-out cone" in sol.message
     assert math.isnan(sol.baseline_tf)
+    # method="eigenaxis" flies round the cone through a waypoint instead (tests/test_waypoint_slew.py)
+    around = solvers.solve(p, method="eigenaxis")
+    assert around.success and "waypoint" in around.route and around.tf > sol.tf
+    assert "direct eigenaxis path enters a keep-out cone" in around.message
 
 
 def test_the_fallback_flies_a_pointing_slew_where_the_route_found_none(monkeypatch):
@@ -137,7 +143,13 @@ def test_the_fallback_keeps_no_time_where_the_path_enters_a_cone(monkeypatch):
     monkeypatch.setattr(api, "_dispatch", route)
     blocked = _pointing(cones=[_cone_at_distance(-0.2, math.radians(15.0))])
     clear = _pointing(cones=[_cone_at_distance(0.3, math.radians(15.0))])
+    # round the cone through one waypoint: two legs, 25 ms each kept
     solvers.solve(blocked, time_budget=0.2, fallback="eigenaxis")
+    assert seen["time_budget"] == pytest.approx(0.2 - 0.05, rel=1e-12)
+    from solvers import waypoint_slew
+    with monkeypatch.context() as m:
+        m.setattr(waypoint_slew, "fallback_plan", lambda prob: None)     # no way round
+        solvers.solve(blocked, time_budget=0.2, fallback="eigenaxis")
     assert seen["time_budget"] == 0.2                  # the route keeps the whole budget
     solvers.solve(clear, time_budget=0.2, fallback="eigenaxis")
     assert seen["time_budget"] == pytest.approx(0.2 - 0.025, rel=1e-12)

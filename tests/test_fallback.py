@@ -51,11 +51,15 @@ def test_a_verified_answer_is_not_replaced():
     assert sol.tf == pytest.approx(2.3540178, rel=1e-7)
 
 
-def test_where_the_fallback_does_not_apply_or_fails_the_failure_says_so():
+def test_where_the_fallback_does_not_apply_or_fails_the_failure_says_so(monkeypatch):
     import time
+    from solvers import waypoint_slew
     from solvers.api import _eigenaxis_fallback
     from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
-    # the eigenaxis path from +x to +y crosses a cone about their bisector
+    # the eigenaxis path from +x to +y crosses a cone about their bisector; with no waypoint slew
+    # around it (none planned here: tests/test_waypoint_slew.py flies the one there is), the direct
+    # slew is tried and fails its clearance check
+    monkeypatch.setattr(waypoint_slew, "fallback_plan", lambda prob: None)
     cones = SlewProblem([1.0, 1.0, 1.0], sensor_target=[0.0, 1.0, 0.0],
                         cones=[{"axis": [0.7071, 0.7071, 0.0], "half_angle_deg": 10.0}])
     moving = _r3().replace(omega0=[0.01, 0.0, 0.0])

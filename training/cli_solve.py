@@ -16,7 +16,7 @@ still written), 2 on bad input. ``--time-budget S`` holds for the whole solve; w
 ``--fallback eigenaxis`` a rest-to-rest problem that gets no verified time-optimal answer
 within it gets the eigenaxis slew (``method: "eigenaxis"``, success, its route and message
 saying it is the fallback; a pointing target at its reference attitude, and with keep-out cones
-only where the slew's path clears them).
+where its path enters one, eigenaxis legs through waypoints round them).
 
 Batch::
 
