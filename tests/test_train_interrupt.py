@@ -59,7 +59,10 @@ def test_a_real_sigint_exits_130_with_one_line(tmp_path):
     run = tmp_path / "run"
     p = subprocess.Popen([sys.executable, "-m", "training.cli", "train", "--data", DATA, "--config", str(cfg),
                           "--out", str(run), "--no-progress"], cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         # as from a terminal: a test run started in the background (``cmd &`` in a
+                         # shell without job control) hands its children SIGINT ignored
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.time() + 120
         while not (run / "config.yaml").exists() and time.time() < deadline:   # written as the epochs start
