@@ -102,7 +102,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     problems in its family; with keep-out cones and ``method="auto"``, the 2 nearest tabled
     solutions of the shipped pointing-cones warm start join collocation's starts, and the warm
     start challenges the default route's answer afterwards, replacing it only with a faster
-    verified extremal: ``cone_challenge``, below), ``"pointing-cones"`` (that warm start as the first
+    verified extremal: ``cone_challenge``, below; under a ``time_budget`` shorter than
+    ``cone_routes.CONE_LEARNED_FIRST_BELOW``, 0.4 s, which the collocation route does not fit in, that
+    warm start goes first instead), ``"pointing-cones"`` (that warm start as the first
     guess: opt-in, faster but often a slower local extremal, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
     ``NearestNeighbourModel`` or anything with ``covers(problem)`` — ``None`` or ``True``: it
     covers the problem; a text saying why not, or ``False``: it does not — and ``guess(problem)``),
@@ -428,6 +430,15 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         if starts and "n_starts" not in col_opts:
             col_opts["n_starts"] = cone_routes.CONE_OWN_STARTS_WITH_NEIGHBOURS
     later = None
+    if challenge and float(options.get("time_budget", math.inf)) < cone_routes.CONE_LEARNED_FIRST_BELOW:
+        # a budget shorter than the collocation route takes: the learned cone guess first (its
+        # verified extremal, where it finds one, is the answer; else the route runs in what is left)
+        warm, info, _ = warm_routes.try_warm_start(prob, method, "pointing-cones", options)
+        if warm is not None and warm.success:
+            warm.route = (f"time budget {float(options['time_budget']):.3g} s, under the collocation route's "
+                          f"{cone_routes.CONE_LEARNED_FIRST_BELOW:g} s: {warm.route}")
+            warm.wall_time = time.perf_counter() - t0
+            return warm
     if guess is None and not challenge:
         # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
         # structure (milliseconds) first; its continuation candidates after collocation, unless

@@ -18,6 +18,13 @@ from . import auto_route, multistart, stage_budget, warm_routes
 # little before the collocation route
 CONE_WARM_BUDGET = 0.2
 
+# s: below this time budget ``auto`` with cones tries the shipped pointing-cones warm start before
+# its collocation route, not after it: collocation's starts and 80-interval solve take 0.3-0.5 s
+# (bench_budget, 10 seed-5 problems: none finished in 0.2 s, all in 0.5 s), so under a shorter
+# budget the route ends without an answer and the learned guess's verified extremal (62 % of
+# held-out problems, 25 ms median; a slower local extremal on 4 in 10 of those) is the best on offer
+CONE_LEARNED_FIRST_BELOW = 0.4
+
 # auto's cone challenger (``cone_challenger``) runs where the route's answer is slower than this
 # multiple of the pointing-cones network's predicted tf ("gated", the default), always, or never.
 # On 600 problems (seeds 5, 6, 7; runs/s27/challenger_*.json) it won 3 times: 45 % faster (the

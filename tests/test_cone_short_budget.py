@@ -1,0 +1,71 @@
+"""``auto`` with keep-out cones under a time budget shorter than its collocation route takes
+(``cone_routes.CONE_LEARNED_FIRST_BELOW``): the shipped pointing-cones warm start first, then the
+route in what is left (before, the route ran out of time and only the fallback answered)."""
+import math
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from solvers import auto_route, cone_routes, warm_routes
+from solvers.solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
+
+
+def _problem():
+    target = np.array([math.cos(math.radians(100)), math.sin(math.radians(100)), 0.0])
+    mid = np.array([math.cos(math.radians(50)), math.sin(math.radians(50)), 0.0])
+    return SlewProblem([0.8, 0.9, 1.0], [1.0, 1.0, 1.0], sensor_target=target, sensor_axis=[1.0, 0.0, 0.0],
+                       cones=[{"axis": mid, "half_angle_deg": 15.0}])
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """Stubs for the learned stage and the route, recording the order they are called in."""
+    seen = []
+
+    def warm(prob, method, warm_start, options, split=False):
+        seen.append(("warm", warm_start, options.get("time_budget")))
+        ok = SlewSolution(True, 0, "stub learned answer", 3, 9, 0.0, method="indirect", problem=prob,
+                          route="learned stub", tf=2.5)
+        return (ok if seen[-1][1] == "pointing-cones" and calls_ok["warm"] else None), \
+            {"model": "stub", "covered": True, "succeeded": calls_ok["warm"]}, None
+
+    def route(prob, guess, col_opts, options, **kw):
+        seen.append(("route", options.get("time_budget")))
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                            method="collocation", problem=prob, route="route stub")
+
+    calls_ok = {"warm": True}
+    monkeypatch.setattr(warm_routes, "try_warm_start", warm)
+    monkeypatch.setattr(auto_route, "solve_auto", route)
+    monkeypatch.setattr(cone_routes, "cone_challenger", lambda prob, sol, *a, **k: sol)
+    return seen, calls_ok
+
+
+def test_a_short_budget_tries_the_learned_cone_guess_first(calls):
+    seen, _ = calls
+    sol = solvers.solve(_problem(), time_budget=0.2)
+    assert sol.success and sol.message == "stub learned answer"
+    assert seen == [("warm", "pointing-cones", 0.2)]        # the route never ran
+    assert "under the collocation route's 0.4 s" in sol.route
+
+
+def test_where_the_learned_guess_fails_the_route_gets_what_is_left(calls):
+    seen, ok = calls
+    ok["warm"] = False
+    sol = solvers.solve(_problem(), time_budget=0.3, fallback="eigenaxis")
+    assert [c[0] for c in seen] == ["warm", "route"]
+    # the fallback kept 2 × 25 ms (a one-waypoint slew round the cone); the route, the rest
+    assert seen[0][2] == pytest.approx(0.25, rel=1e-9) and seen[1][1] < 0.25
+    assert sol.success and sol.method == "eigenaxis" and "waypoint" in sol.route
+    assert sol.warm_start["model"] == "stub" and not sol.warm_start["succeeded"]
+
+
+def test_a_budget_the_route_fits_in_keeps_the_route_first(calls):
+    seen, _ = calls
+    solvers.solve(_problem(), time_budget=cone_routes.CONE_LEARNED_FIRST_BELOW)
+    assert seen[0][0] == "route"
+    seen.clear()
+    solvers.solve(_problem())                  # no budget: the default route, as before
+    assert seen[0][0] == "route"
