@@ -18,8 +18,9 @@ torque bound and the rate limit about its axis).
 **The planner.** Candidate directions lie on two rings around each cone (its half-angle plus
 ``RING_OFFSETS``), ``N_AZIMUTH`` to a ring. A plan is kept where every leg's sensor path, sampled
 every ``1/ARC_SAMPLES`` rad, keeps ``PLAN_CLEARANCE`` from every cone; plans are ranked by
-the sum of their legs' eigenaxis times (``eigenaxis.axis_time``, ``PLAN_GRID`` steps) and the
-fastest is flown. One waypoint is tried first; two (every pair of candidates, the shortest
+an estimate of their time (each leg bang-bang at the acceleration the bound allows at rest), the
+best ``PROFILE_TIMED`` are timed on their legs' eigenaxis profiles (``eigenaxis.axis_time``,
+``PLAN_GRID`` steps: the gyroscopic term and the rate limit) and the fastest is flown. One waypoint is tried first; two (every pair of candidates, the shortest
 ``TWO_WAYPOINT_TIMED`` by sensor angle timed) only where no single waypoint clears the cones.
 Planning takes about 2–10 ms.
 
@@ -45,6 +46,7 @@ from slew_env.core.cones import angle_between, perpendicular_basis
 from slew_env.core.quaternion import qaxis_angle, qerror_angle, qfrom_two_vectors, qmul, qrotate, qrotate_inv
 from .clearance import sensor_directions
 from .eigenaxis import axis_time, eigenaxis_path
+from .guesses import eigenaxis_acceleration
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
 from .verify import failure_text, make_check
 
@@ -60,6 +62,8 @@ ARC_SAMPLES = 30
 PLAN_GRID = 120
 # two-waypoint plans timed (the shortest by the sensor's total angle), where one waypoint is not enough
 TWO_WAYPOINT_TIMED = 24
+# plans timed on the eigenaxis profile, the best by the rest-to-rest estimate (``timed``)
+PROFILE_TIMED = 4
 # a leg longer than this (rad) is no smallest rotation to plan with (near antipodal directions)
 MAX_LEG_ANGLE = math.radians(179.0)
 
@@ -210,8 +214,12 @@ def plan_waypoints(problem) -> Optional[WaypointPlan]:
     n_tried = 0
     plans = []        # (planned time, attitudes, directions, legs' times)
 
+    J, U, p = np.asarray(problem.inertia, float), np.asarray(problem.torque_max, float), float(problem.torque_norm)
+
     def timed(n, th):
-        return axis_time(problem, n, th, n_grid=PLAN_GRID) if th > 0.0 else 0.0
+        # a first estimate: bang-bang at the acceleration the bound allows at rest (no gyroscopic
+        # term, no rate limit); the best few plans by it are timed on the profile below
+        return 2.0 * math.sqrt(th / eigenaxis_acceleration(J, U, p, n)) if th > 0.0 else 0.0
 
     def last(q):
         nonlocal n_tried
@@ -261,7 +269,15 @@ def plan_waypoints(problem) -> Optional[WaypointPlan]:
                 plans.append((sum(ts), [q0, q1, q2, qe], [s0, W[i], W[j], np.asarray(qrotate(qe, s_b))], ts))
     if not plans:
         return None
-    best = min(plans, key=lambda r: r[0])
+    # the best few by the estimate, timed on the eigenaxis profile (gyroscopic term and rate limit)
+    timed_plans = []
+    for _, att, dirs, _ in sorted(plans, key=lambda r: r[0])[:PROFILE_TIMED]:
+        ts = []
+        for qa, qb in zip(att[:-1], att[1:]):
+            n, th = qaxis_angle(np.ascontiguousarray(qa, float), np.ascontiguousarray(qb, float))
+            ts.append(axis_time(problem, n, th, n_grid=PLAN_GRID) if th > 0.0 else 0.0)
+        timed_plans.append((sum(ts), att, dirs, ts))
+    best = min(timed_plans, key=lambda r: r[0])
     return WaypointPlan(best[1], best[2], float(best[0]), n_tried, list(best[3]))
 
 
