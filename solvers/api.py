@@ -555,8 +555,9 @@ def _fallback_grid(prob, left=math.inf, legs=1):
 def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSolution:
     """``fallback="eigenaxis"``: where the route returned no verified answer (the time budget
     ran out, or nothing converged), the eigenaxis slew of a rest-to-rest problem (a pointing
-    target at its reference attitude; with cones where its path clears them) (``eigenaxis_answer``:
-    what most spacecraft fly today, verified by its replay;
+    target at its reference attitude; with cones where its path clears them, else the slew through
+    waypoints around them, ``waypoint_slew``) (``eigenaxis_answer``: what most spacecraft fly
+    today, verified by its replay;
     12–24 ms for a per-axis bound, planned in the ``reserved`` seconds that ``solve`` kept out of
     the route's budget). ``sol`` unchanged, its message saying why, where the fallback does not
     apply or fails."""
@@ -572,6 +573,15 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSoluti
                                                 plan=plan)
         else:
             eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
+            if (not eig.success and prob.cones and prob.is_rest_to_rest
+                    and not eig.verification.get("cone_clearance", {}).get("passed", True)):
+                # the direct path's samples cleared the cones (``direct_path_clear``) but the
+                # certified margin between them did not: round the cones through waypoints
+                plan = waypoint_slew.plan_waypoints(prob)
+                if plan is not None:
+                    wp = waypoint_slew.waypoint_answer(
+                        prob, n_grid=_fallback_grid(prob, end - time.perf_counter(), plan.n_waypoints + 1), plan=plan)
+                    eig = wp if wp.success else eig
     except ValueError as e:          # a zero slew: nothing to fly
         sol.message = f"{sol.message} (fallback 'eigenaxis' does not apply: {e}.)"
         return sol

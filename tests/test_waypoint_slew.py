@@ -151,6 +151,26 @@ def test_the_fallback_flies_the_waypoint_slew_under_a_short_budget(monkeypatch):
     assert sol.tf == pytest.approx(solvers.solve(p, method="eigenaxis").tf, rel=1e-6)
 
 
+def test_the_fallback_goes_round_the_cones_where_the_direct_slew_fails_its_clearance(monkeypatch):
+    """The planner took the direct path for clear (its samples), but the flown slew's certified
+    clearance fails: the fallback flies waypoints instead of giving up (the direct path here goes
+    right through the cone; the sampled check is stubbed to have missed it)."""
+    import solvers.api as api
+    monkeypatch.setattr(waypoint_slew, "direct_path_clear", lambda problem: True)
+    waypoint_slew._fallback_plan_cached.cache_clear()
+    p = _blocked_pointing(torque_max=[0.9, 1.0, 1.0])
+    assert waypoint_slew.fallback_plan(p) == "direct"
+    failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
+                          method="auto", problem=p, route="stub")
+    sol = api._eigenaxis_fallback(p, failed, 0.0, 0.05, math.inf)
+    waypoint_slew._fallback_plan_cached.cache_clear()
+    assert sol.success and "fallback: eigenaxis slew through 1 waypoint" in sol.route
+    assert sol.verification["cone_clearance"]["value"] > 0.0
+    x, worst = _replay(sol, p)
+    end = _rot(x[:4] / np.linalg.norm(x[:4])).apply(SENSOR)
+    assert math.acos(min(1.0, float(end @ p.sensor_target))) < 1e-7 and worst > 0.0
+
+
 def test_a_failed_solve_says_the_fallback_would_go_round_the_cones(monkeypatch):
     from solvers import cone_routes
 
