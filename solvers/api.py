@@ -573,7 +573,7 @@ def _eigenaxis_fallback(prob, sol, t0, reserved=0.0, end=math.inf) -> SlewSoluti
                                                 plan=plan)
         else:
             eig = eigenaxis_answer(prob, n_grid=_fallback_grid(prob, end - time.perf_counter()))
-            if (not eig.success and prob.cones and prob.is_rest_to_rest
+            if (plan == "direct" and not eig.success and prob.cones and prob.is_rest_to_rest
                     and not eig.verification.get("cone_clearance", {}).get("passed", True)):
                 # the direct path's samples cleared the cones (``direct_path_clear``) but the
                 # certified margin between them did not: round the cones through waypoints
