@@ -303,6 +303,10 @@ def interior_run(t, u, umax, interior=0.98):
     return best
 
 
+# a rate at this share of its limit or more counts as riding it (``singular_arc_evidence``)
+RATE_LIMIT_ACTIVE = 0.99
+
+
 def singular_arc_evidence(problem, col):
     """A sentence naming the singular arc that a collocation answer ``col`` shows (a run of
     interior torque on one axis over at least ``SINGULAR_RUN`` of tf and ``SINGULAR_RUN_SAMPLES``
@@ -314,8 +318,19 @@ def singular_arc_evidence(problem, col):
     a, start, length, n = interior_run(col.t, col.u, problem.torque_max)
     if a < 0 or n < SINGULAR_RUN_SAMPLES or not length >= SINGULAR_RUN * float(col.tf):
         return None
+    what = "a singular arc"
+    if problem.has_rate_limit and col.omega is not None:
+        # interior torque where the rate rides its limit is the coast of a state-constrained arc,
+        # not a singular arc (neither has an exact bang-bang answer here)
+        t = np.asarray(col.t, float)
+        run = (t >= start) & (t <= start + length)
+        w = np.asarray(col.omega, float)[run]
+        at_limit = np.array([problem.rate_limit_ratio(r) >= RATE_LIMIT_ACTIVE for r in w])
+        if at_limit.size and np.mean(at_limit) >= 0.5:
+            what = (f"the rate limit is active (the rate within {1 - RATE_LIMIT_ACTIVE:.0%} of it on "
+                    f"{np.mean(at_limit):.0%} of those samples): a rate-limited coast, a state-constrained arc")
     return (f"collocation's torque on axis {a + 1} is interior over {length / col.tf:.0%} of tf "
-            f"(from t = {start:.4g}, {n} samples): a singular arc")
+            f"(from t = {start:.4g}, {n} samples): {what}")
 
 
 # SLSQP iterations for auto's bang-bang answer: on held-out singular problems 20 iterations

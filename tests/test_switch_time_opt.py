@@ -242,6 +242,24 @@ def test_a_bang_bang_optimum_shows_no_singular_arc_in_collocation():
     assert text is not None and "interior over" in text
 
 
+def test_interior_torque_while_the_rate_rides_its_limit_is_called_a_rate_limited_coast():
+    """A rate-limited slew's coast has interior torque too; it is named for what it is (a user
+    review had read "a singular arc" on the A1 example, whose rate rides its 1°/s limit)."""
+    from types import SimpleNamespace
+    t = np.linspace(0.0, 10.0, 101)
+    u = np.ones((101, 3))
+    u[20:80, 2] = 0.01                              # interior from t = 2 to 8
+    w = np.zeros((101, 3))
+    w[20:80, 2] = 0.5                               # ... with the z rate at its limit
+    col = SimpleNamespace(success=True, t=t, u=u, omega=w, tf=10.0)
+    limited = SlewProblem([1.0, 1.0, 1.0], torque_max=1.0, qf=[0.0, 0.0, 0.0, 1.0], rate_max=0.5)
+    text = singular_arc_evidence(limited, col)
+    assert "rate-limited coast" in text and "singular" not in text
+    # the same control with the rate off its limit (or no limit at all) is a singular arc
+    assert "a singular arc" in singular_arc_evidence(limited.replace(rate_max=1.0), col)
+    assert "a singular arc" in singular_arc_evidence(limited.replace(rate_max=None), col)
+
+
 # the session-31 replay audit's full-attitude problem 106 (runs/s31/replay): a 26° slew whose
 # collocation torque is interior on 5 % of x's samples and 2.5 % of z's
 AUDIT_106 = {"inertia": [0.530098590725567, 0.8218393595384945, 0.4410482181225713],
