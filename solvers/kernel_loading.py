@@ -121,7 +121,7 @@ def _ensure_kind(kind: tuple) -> float:
         return _LOADED[kind]
 
 
-def load_kernels(problems=None) -> float:
+def load_kernels(problems=None, method: str = "auto", warm_start="default") -> float:
     """Load the compiled kernels before the first time-critical solve of a process.
 
     ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load, and, where
@@ -130,7 +130,15 @@ def load_kernels(problems=None) -> float:
     (``collocation.prebuild_nlps``); ``None`` loads every kind. Returns the seconds spent.
     ``solve`` does this by itself before its clock starts, so calling it is needed only to take
     that time at start-up rather than in the first solve (0.2–1.8 s a kind once numba's cache
-    exists; on a fresh install it compiles, tens of seconds a kind; the module docstring)."""
+    exists; on a fresh install it compiles, tens of seconds a kind; the module docstring).
+
+    ``method`` and ``warm_start``: those the later solves will pass to ``solve`` (the NLPs built
+    are those of that route: ``solve(p, warm_start=None)`` begins a full-attitude slew with
+    collocation, where the shipped warm start does not; a user review measured a first such solve
+    under a 0.02 s budget at 197 ms after ``load_kernels([p])`` had loaded the default route)."""
+    from .api import METHODS
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"method: expected one of {list(METHODS)}, got {method!r:.60}")
     if problems is None:
         kinds = [(b, t, c) for b in ("per-axis", "p-norm") for t in ("full", "pointing") for c in (False, True)]
     else:
@@ -145,6 +153,6 @@ def load_kernels(problems=None) -> float:
     if problems is not None:
         from .api import _begins_with_collocation
         from .collocation import prebuild_nlps
-        # the NLPs that solve(p) (auto, the default warm start) builds before its clock
-        total += sum(prebuild_nlps(p) for p in probs if _begins_with_collocation(p, "auto", None, "default"))
+        # the NLPs that solve(p, method=method, warm_start=warm_start) builds before its clock
+        total += sum(prebuild_nlps(p) for p in probs if _begins_with_collocation(p, method, None, warm_start))
     return total
