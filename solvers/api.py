@@ -416,7 +416,16 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         if guess is not None:
             raise ValueError("guess: method='eigenaxis' plans the eigenaxis slew and takes no guess")
         # (with cones where the direct path enters one, the slew through waypoints around them)
-        return waypoint_slew.flyable_eigenaxis_answer(prob)
+        if "time_budget" not in options or not prob.is_rest_to_rest:
+            return waypoint_slew.flyable_eigenaxis_answer(prob)
+        # a budget: profiles of as many steps as fit in it (the fallback's grid, down to its floor)
+        t0 = time.perf_counter()
+        budget = float(options["time_budget"])
+        legs = _fallback_legs(prob)
+        grid = _fallback_grid(prob, budget - (time.perf_counter() - t0), legs)
+        sol = waypoint_slew.flyable_eigenaxis_answer(prob, n_grid=grid)
+        sol.route = f"{sol.route}; profile steps fitted to the time budget, {budget:.3g} s"
+        return sol
     t0 = time.perf_counter()
     warm = None
     info = {}

@@ -66,6 +66,22 @@ def test_eigenaxis_answer_of_an_asymmetric_body_with_a_rate_limit():
     assert np.abs(n - n[len(n) // 2]).max() < 1e-12
 
 
+def test_a_time_budget_gives_the_eigenaxis_method_a_profile_that_fits_it():
+    """``method="eigenaxis"`` had ignored ``time_budget`` (a review: 22 ms for 1 ms asked): the
+    profile gets the fallback's grid for the budget, down to its floor, and the same slew."""
+    from solvers.api import FALLBACK_GRID_FLOOR
+    p = SlewProblem([5621, 4547, 2364], torque_max=50, qf=R5_QF)
+    fine = solvers.solve(p, method="eigenaxis")
+    short = solvers.solve(p, method="eigenaxis", time_budget=0.001)
+    assert short.success and f"{FALLBACK_GRID_FLOOR['no-gyro']} steps" in short.route
+    assert "time budget" in short.route and "16000 steps" in fine.route
+    assert short.tf == pytest.approx(fine.tf, rel=1e-9)
+    att, rate = _fly(short, p)
+    assert att < 1e-7 and rate < 1e-7
+    with pytest.raises(ValueError, match="time_budget"):
+        solvers.solve(p, method="eigenaxis", time_budget=-1.0)
+
+
 def test_auto_never_returns_a_small_slew_slower_than_the_eigenaxis_slew():
     # 0.001° with J = I: collocation's answer was 9.3e-5 slower than the eigenaxis slew (within
     # its own tolerance); auto now answers with the eigenaxis slew itself

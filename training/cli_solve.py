@@ -88,7 +88,7 @@ def add_arguments(p):
                         "slower than the network's predicted time (gated, the default), always, or never")
     p.add_argument("--time-budget", type=float, metavar="S",
                    help="seconds for the whole solve (default: the solver's, 20; collocation 60; "
-                        "--method eigenaxis takes none)")
+                        "--method eigenaxis: profiles coarse enough to fit, down to a floor)")
     p.add_argument("--fallback", choices=("eigenaxis",), default=None,
                    help="where no verified time-optimal answer comes within the budget, return the eigenaxis slew "
                         "(rest to rest; a pointing target at its reference attitude; with cones only where its "
