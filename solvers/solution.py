@@ -135,7 +135,11 @@ class SlewSolution:
         must stop torquing itself."""
         if self._control is None:
             raise ValueError("control: this solution has no trajectory")
-        return self._control(t)
+        tq = np.asarray(t, dtype=float)
+        if not np.all(np.isfinite(tq)):
+            # (a NaN instant would otherwise get a torque: the first arc's, by searchsorted)
+            raise ValueError(f"t: the instants must be finite numbers, got {t!r:.80}")
+        return self._control(tq)
 
     @property
     def exact(self) -> bool:

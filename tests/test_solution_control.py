@@ -54,3 +54,14 @@ def test_bang_bang_control_reaches_the_target():
     # pieces at the switch instants: the torque is constant on each
     att, rate = _fly(sol, prob, pieces=64)
     assert att < 1e-6 and rate < 1e-6
+
+
+def test_a_non_finite_instant_is_refused_by_name():
+    # (NaN had come back as the first arc's full torque: a user review)
+    sol = solvers.solve(SlewProblem([1, 1, 1], qf=[0, 0, 0, 1]), method="indirect")
+    assert sol.success
+    for bad in (math.nan, [0.1, math.inf]):
+        with pytest.raises(ValueError, match="t: the instants must be finite"):
+            sol.control(bad)
+    # outside [0, tf] the law is extended, as the docstring says: the first arc's torque before 0
+    np.testing.assert_array_equal(sol.control(-0.1), sol.control(0.0))
