@@ -138,6 +138,16 @@ def test_model_file_errors(tmp_path):
         solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=42)
     with pytest.raises(ModelFileError, match="file not found"):
         solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=str(tmp_path / "missing.npz"))
+    # a file of another kind (a problem's JSON): named as such, not numpy's advice to unpickle it
+    js = tmp_path / "problem.json"
+    js.write_text('{"inertia": [1, 1, 1]}')
+    with pytest.raises(ModelFileError, match="is not a .npz model file") as e:
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=str(js))
+    assert "pickle" not in str(e.value)
+    # the command line's 'none' given from Python: the valid spellings, not "file not found: .../none"
+    with pytest.raises(ValueError, match="pass None") as e:
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start="none")
+    assert "'default' and 'pointing-cones'" in str(e.value)
 
 
 def test_save_load_round_trip_gives_identical_predictions(tmp_path):

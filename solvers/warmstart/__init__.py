@@ -190,6 +190,11 @@ def resolve(warm_start, problem=None):
             raise ValueError(f"warm_start: no pointing-cones model is shipped ({DEFAULT_CONE_MODEL_FILE} is missing)")
         return cone
     if isinstance(warm_start, (str, os.PathLike)):
+        if isinstance(warm_start, str) and warm_start.strip().lower() in ("none", "null", "") \
+                and not os.path.exists(warm_start):
+            # (the command line's spelling of None, given from Python)
+            raise ValueError(f"warm_start: {warm_start!r} is no model name or file; for no warm start pass None "
+                             "(Python) or 'none' (the command line); the names are 'default' and 'pointing-cones'")
         return load_model(warm_start)
     if hasattr(warm_start, "guess") and hasattr(warm_start, "covers"):
         if type(warm_start).__module__.startswith(__name__):

@@ -73,6 +73,13 @@ def read_npz(path) -> dict:
     """All arrays of a model file; ``ModelFileError`` if it is missing or unreadable."""
     if not os.path.exists(path):
         raise ModelFileError(f"model: file not found: {path}")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head != b"PK\x03\x04":
+        # (np.load reads other formats too, and for a pickle suggests loading it unsafely)
+        raise ModelFileError(f"model: {path} is not a .npz model file (a model is a zip archive of arrays "
+                             "written by 'slew train --export'; this file starts with "
+                             f"{head!r})")
     try:
         with np.load(path, allow_pickle=False) as f:
             return {k: f[k] for k in f.files}
