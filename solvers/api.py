@@ -523,8 +523,9 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         # a user with a slew to fly and no verified answer should learn that one is offered
         text = sol.message.rstrip()
         sol.message = (text + ("" if text.endswith((".", ")")) else ".")
-                       + (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew (tf near "
-                          "baseline_tf), checked by its own replay, not time-optimal." if _fallback_legs(prob) == 1 else
+                       + (" No verified answer: fallback='eigenaxis' would return the eigenaxis slew "
+                          "(solvers.eigenaxis_slew; its time is baseline_tf where the budget left time to plan it), "
+                          "checked by its own replay, not time-optimal." if _fallback_legs(prob) == 1 else
                           " No verified answer: fallback='eigenaxis' would return an eigenaxis slew through "
                           "waypoints around the keep-out cones, checked by its own replay, not time-optimal."))
     return sol
