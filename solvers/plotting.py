@@ -8,8 +8,9 @@ without a path the figure comes from ``pyplot.figure`` so that ``plt.show()`` wo
 Panels, all against time in the problem's units:
 
 1. attitude: the quaternion components ``q0..q3`` (scalar first);
-2. body rates ``ω``;
-3. torques ``u``, with the switch instants of each axis as vertical lines;
+2. body rates ``ω``, with the rate limits where the problem has them;
+3. torques ``u``, with the switch instants of each axis as vertical lines (for an answer
+   whose control is its samples, collocation's or the eigenaxis slew's: the sign changes);
 4. switching functions ``S_i = (J⁻¹ λω)_i`` with the zero line (per-axis bound:
    ``u_i = -u_max,i sign S_i``, so every crossing is a switch);
 5. the Hamiltonian ``H = λqᵀ q̇ + λωᵀ ω̇`` evaluated from the dense samples with the
@@ -104,15 +105,27 @@ def plot_solution(sol, path=None, dpi=120):
     for i in range(3):
         ax_w.plot(t, w[:, i], color=_AXIS_COLORS[i], label=f"ω{AXES[i]}")
     ax_w.axhline(0.0, color="0.6", lw=0.6)
+    prob = getattr(sol, "problem", None)
+    if prob is not None and prob.rate_max is not None:
+        for i in range(3):
+            for sgn in (1.0, -1.0):
+                ax_w.axhline(sgn * float(prob.rate_max[i]), color=_AXIS_COLORS[i], ls=":", lw=0.9,
+                             label=f"rate_max {AXES[i]}" if sgn > 0 else None)
+    if prob is not None and prob.rate_norm_max is not None:
+        ax_w.plot(t, np.linalg.norm(w, axis=1), color="0.35", lw=0.9, label="‖ω‖")
+        ax_w.axhline(float(prob.rate_norm_max), color="0.35", ls=":", lw=0.9, label="rate_norm_max")
     ax_w.set_ylabel("ω")
 
     for i in range(3):
         ax_u.plot(t, u[:, i], color=_AXIS_COLORS[i], label=f"u{AXES[i]}", drawstyle="default")
+    # the switch instants are the control of a bang-bang answer; of an answer whose control is its
+    # samples (collocation, the eigenaxis slew) they are only where the sampled torque changes sign
+    bang = getattr(sol, "control_law", "") in ("bang-bang", "costate")
     n_sw = 0
     for i in range(3):
         for ts in sw[i]:
-            ax_u.axvline(ts, color=_AXIS_COLORS[i], ls="--", lw=0.9, alpha=0.8,
-                         label=f"switch {AXES[i]}" if ts == sw[i][0] else None)
+            ax_u.axvline(ts, color=_AXIS_COLORS[i], ls="--" if bang else ":", lw=0.9, alpha=0.8,
+                         label=(f"switch {AXES[i]}" if bang else f"sign change {AXES[i]}") if ts == sw[i][0] else None)
             n_sw += 1
     ax_u.set_ylabel("u")
 
@@ -142,7 +155,9 @@ def plot_solution(sol, path=None, dpi=120):
     ax_h.set_xlabel("t (problem time units)")
 
     titles = (PANEL_TITLES[0] + " (quaternion, scalar first)", PANEL_TITLES[1],
-              f"{PANEL_TITLES[2]} ({n_sw} switches)", f"{PANEL_TITLES[3]} S_i = (J⁻¹λω)_i",
+              f"{PANEL_TITLES[2]} ({n_sw} switches)" if bang else
+              f"{PANEL_TITLES[2]} ({n_sw} sign changes of the sampled torque; the control is its samples)",
+              f"{PANEL_TITLES[3]} S_i = (J⁻¹λω)_i",
               f"{PANEL_TITLES[4]} λqᵀq̇ + λωᵀω̇ (≈ -1 along an extremal)")
     for ax, title in zip(axs, titles):
         ax.set_title(title, fontsize=10, loc="left")

@@ -126,3 +126,22 @@ def test_plot_of_an_answer_without_costates(r3_solution, tmp_path):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert any("no costates" in t.get_text() for t in fig.axes[4].texts)
     assert len(fig.axes[4].get_lines()) == 1           # the -1 reference alone
+
+
+def test_a_sampled_control_shows_sign_changes_and_the_rate_limits(tmp_path):
+    """Collocation's control is its samples: the torque panel names their sign changes, not
+    switches, and the rate panel draws the problem's limits (a user review, on A1)."""
+    from solvers import solve
+    from solvers.plotting import plot_solution
+    prob = SlewProblem.from_dict(json.loads((EXAMPLES / "r3_seed_report_per_axis.json").read_text())).replace(
+        rate_max=0.9, rate_norm_max=1.2)
+    sol = solve(prob, method="collocation")
+    assert sol.success and sol.control_law == "quadratic-samples"
+    fig = plot_solution(sol, tmp_path / "c.png")
+    ax_w, ax_u = fig.axes[1], fig.axes[2]
+    assert "sign changes of the sampled torque" in ax_u.get_title(loc="left")
+    assert "switches" not in ax_u.get_title(loc="left")
+    labels = [ln.get_label() for ln in ax_w.get_lines()]
+    assert {"rate_max x", "rate_max y", "rate_max z", "‖ω‖", "rate_norm_max"} <= set(labels)
+    limits = [ln for ln in ax_w.get_lines() if ln.get_label() == "rate_max x"]
+    assert float(np.asarray(limits[0].get_ydata())[0]) == pytest.approx(0.9)
