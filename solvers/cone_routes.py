@@ -53,10 +53,16 @@ def network_predicted_tf(model, prob) -> Optional[float]:
     if it does not cover the problem or fails); ``model`` is the ensemble or the network."""
     net = getattr(model, "network", model)
     try:
-        g, why = net.guess_or_reason(prob)
+        if hasattr(net, "predict_canonical") and hasattr(net, "_coverage"):
+            # the selector's first head only (a guess would decode every head and make their guesses)
+            why, cf = net._coverage(prob)
+            tf = None if why else float(net.predict_canonical(cf.x, cf.T_ref)[1]) * cf.tau
+        else:
+            g, why = net.guess_or_reason(prob)
+            tf = None if why or g is None else float(g.tf)
     except Exception:   # noqa: BLE001 - no prediction: the challenge runs
         return None
-    return None if why or g is None or not (g.tf > 0.0) else float(g.tf)
+    return tf if tf is not None and tf > 0.0 and math.isfinite(tf) else None
 
 
 def cone_challenger(prob, sol, options, t0, gated=True) -> SlewSolution:

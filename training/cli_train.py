@@ -12,7 +12,8 @@ from .interrupts import interrupt_deferred
 
 def add_arguments(p):
     p.add_argument("--data", nargs="+", required=True, metavar="FILE.jsonl",
-                   help="dataset files from 'slew generate' (exact solutions are used)")
+                   help="dataset files from 'slew generate' (exact solutions are used), or one pointing-cones "
+                        "solution table NAME.nn.npz that 'slew train --export' wrote (its exact solutions)")
     p.add_argument("--config", default=None, help="YAML config (default: training/warmstart/configs/full-attitude.yaml)")
     p.add_argument("--out", "-o", default="runs/warmstart", help="run directory (default runs/warmstart)")
     p.add_argument("--seed", type=int, default=0, help="seed of the split, the initialisation and the shuffles")

@@ -9,7 +9,8 @@ Newton of ``solvers.cone_touch`` is far more sensitive to wrong switch instants 
 costates (on 40 held-out problems with exact answers: with the true switching structure and
 touches, 34 of the network's costate guesses converge; with its own, 10). So the candidates are, in order: the solutions of the
 ``n_neighbours`` nearest problems of the table (``cone_nearest``, mapped to this problem's
-axes and cones), then the network's guess and its variants (``cone_model``). The solver tries
+axes and cones), then the network's guesses and their variants (``cone_model``: with several
+heads, each head's in the selector's order). The solver tries
 them one by one, each under a short time cap (``solvers.cone_routes.CONE_CANDIDATE_CAP``), those with
 touches in order of their starting residual (``RANKS_CANDIDATES``). Only the nearest solution's
 guess is made by ``guess``; the later candidates are deferred (``Guess.iter_all``: made when the
@@ -104,7 +105,8 @@ class ConeEnsembleWarmStart:
         later = [functools.partial(self.table.row_guess, problem, cf, int(j), rank)
                  for rank, j in enumerate(idx[1:], 1)]
         net = _NetworkParts(self.network, problem, cf)
-        first.candidates = later + [net.part(0), net.part(1)]
+        # each head gives a guess and its variant (with or without the touches), in the selector's order
+        first.candidates = later + [net.part(k) for k in range(2 * self.network.heads)]
         # on the guess too: the model object is shared (cached), the guess is this call's
         first.inference_s = self.last_inference_s = time.perf_counter() - t0
         return first, None
@@ -118,8 +120,8 @@ class ConeEnsembleWarmStart:
 
 class _NetworkParts:
     """The network's guess for one problem, made once when a deferred candidate first asks for
-    it, as its plain parts: the guess, then its variant (with or without the touches), each
-    without candidates of its own."""
+    it, as its plain parts: each head's guess, then its variant (with or without the touches),
+    each without candidates of its own."""
 
     def __init__(self, network, problem, cf):
         self.network, self.problem, self.cf = network, problem, cf

@@ -12,15 +12,25 @@ The network maps the canonical features of ``cone_features`` to
 * the switching structure, as in ``model.WarmStartModel``: first-arc signs, switches per
   canonical axis (0 … ``max_switches``) and their instants as fractions of ``T``.
 
-``guess(problem)`` returns a ``solvers.Guess`` whose ``touches`` are the predicted contacts
-(probability above one half), followed by the other reading as a candidate: no touch if
-touches were predicted, else the most likely touch. Every guess carries the predicted
+**Several heads.** The map from a problem to its optimal slew has branches (touch a cone or
+not, pass it on one side or the other, another switching structure), and a single regression
+blurs them: a network trained so predicts costates 18° off in the median and the whole
+structure right on 30 % of held-out solutions. A model with ``heads`` K > 1 (card ``heads``)
+predicts K solutions and a selector logit for each: trained winner-takes-all (each solution
+teaches the head that predicts it best, ``training.warmstart.cone_data.losses``), each head
+specialises in a branch, and the selector learns which head wins. Its outputs are K blocks of
+``cone_output_layout(max_switches)``, then the K selector logits.
+
+``guess(problem)`` returns a ``solvers.Guess`` for the head the selector ranks first, whose
+``touches`` are the predicted contacts (probability above one half), followed by the other
+reading as a candidate: no touch if touches were predicted, else the most likely touch; then
+the same two for each further head, in the selector's order. Every guess carries the predicted
 switching structure, so the solver goes straight to the switch-time Newton (with the touch
 junctions, ``cone_touch.structured_newton``; without touches, the extremal of the problem
 without cones, whose path clearance is then certified).
 
-File format: that of ``model.WarmStartModel`` with ``kind: "pointing-cones"`` in the card and
-the output layout ``cone_output_layout(max_switches)``.
+File format: that of ``model.WarmStartModel`` with ``kind: "pointing-cones"`` in the card,
+``heads`` (1 if absent) and the output layout of one head, ``cone_output_layout(max_switches)``.
 """
 from __future__ import annotations
 
@@ -49,8 +59,12 @@ def cone_output_layout(max_switches: int) -> dict:
     return o
 
 
-def cone_output_size(max_switches: int) -> int:
-    return cone_output_layout(max_switches)["times_logit"][1]
+def cone_output_size(max_switches: int, heads: int = 1) -> int:
+    """Outputs of a network with ``heads`` heads: one head's block each, then (several heads)
+    one selector logit a head."""
+    per = cone_output_layout(max_switches)["times_logit"][1]
+    heads = int(heads)
+    return per if heads == 1 else heads * (per + 1)
 
 SECOND_TOUCH_PROB = 0.1   # a touch this likely is tried as a candidate when none is predicted
 
@@ -62,12 +76,17 @@ class ConeWarmStartModel(WarmStartModel):
 
     def _check_layout(self, card):
         self.K = int(card["max_switches"])
+        heads = card.get("heads", 1)
+        if isinstance(heads, bool) or not isinstance(heads, int) or heads < 1:
+            raise ModelFileError(f"card.heads: expected a whole number ≥ 1, got {heads!r}")
+        self.heads = heads
         self.layout = {k: tuple(v) for k, v in card.get("output_layout", cone_output_layout(self.K)).items()}
+        self.head_size = cone_output_layout(self.K)["times_logit"][1]
         n_in, n_out = self.weights[0][0].shape[0], self.weights[-1][0].shape[1]
-        if n_out != cone_output_size(self.K) or n_in != N_CONE_FEATURES:
+        if n_out != cone_output_size(self.K, heads) or n_in != N_CONE_FEATURES:
             raise ModelFileError(f"weights: shapes {n_in} → {n_out} do not match {N_CONE_FEATURES} features → "
-                                 f"{cone_output_size(self.K)} outputs of a pointing-cones model "
-                                 f"(max_switches {self.K})")
+                                 f"{cone_output_size(self.K, heads)} outputs of a pointing-cones model "
+                                 f"(max_switches {self.K}, {heads} head{'s' if heads > 1 else ''})")
 
     def _coverage(self, problem, supported=False):
         """``(reason or None, canonical form or None)``; ``supported``: the caller has just found
@@ -101,15 +120,36 @@ class ConeWarmStartModel(WarmStartModel):
             return f"cones: half angles outside the model's range [{alo:g}°, {ahi:g}°]", cf
         return None, cf
 
-    def predict_canonical(self, x, T_ref):
+    def head_order(self, out) -> np.ndarray:
+        """The heads in the selector's order (most likely first) for the raw outputs ``out``
+        of one problem; ``[0]`` for a single head."""
+        if self.heads == 1:
+            return np.zeros(1, np.int64)
+        sel = np.asarray(out[self.heads * self.head_size:], np.float64)
+        return np.argsort(-sel, kind="stable")
+
+    def predict_canonical(self, x, T_ref, head=None):
         """``(z', T, touch probabilities, touch instants, multipliers, first-arc signs, switch
-        instants per axis)``, canonical and nondimensional (cone quantities per slot)."""
+        instants per axis)``, canonical and nondimensional (cone quantities per slot), of
+        ``head`` (default: the one the selector ranks first)."""
         out = self.forward(np.asarray(x, np.float64).reshape(-1))[0]
+        return self._decode(out, int(self.head_order(out)[0]) if head is None else int(head), T_ref)
+
+    def predict_heads(self, x, T_ref) -> list:
+        """``predict_canonical`` of every head, in the selector's order (one network pass)."""
+        out = self.forward(np.asarray(x, np.float64).reshape(-1))[0]
+        return [self._decode(out, int(h), T_ref) for h in self.head_order(out)]
+
+    def _decode(self, out, head, T_ref):
+        if not 0 <= head < self.heads:
+            raise ValueError(f"head: the model has {self.heads} head(s), got {head}")
         L = self.layout
+        o = head * self.head_size
         n_slots = L["touch_logit"][1] - L["touch_logit"][0]
         z, T, p, tc, nu, uf, counts, tt = _k.decode_cone(
-            out, self.K, n_slots, L["z"][0], L["log_T_ratio"][0], L["touch_logit"][0], L["touch_time_logit"][0],
-            L["log_nu"][0], L["u_first_logit"][0], L["count_logits"][0], L["times_logit"][0], float(T_ref))
+            out, self.K, n_slots, o + L["z"][0], o + L["log_T_ratio"][0], o + L["touch_logit"][0],
+            o + L["touch_time_logit"][0], o + L["log_nu"][0], o + L["u_first_logit"][0], o + L["count_logits"][0],
+            o + L["times_logit"][0], float(T_ref))
         if not (math.isfinite(T) and T > 0.0):
             raise ValueError(f"x: the network's final time is {T!r} (features outside the model's range?)")
         return z, T, p, tc, nu, uf, [tt[i, :counts[i]] for i in range(3)]
@@ -123,23 +163,37 @@ class ConeWarmStartModel(WarmStartModel):
         return self.guess_from_form(problem, cf, t0), None
 
     def guess_from_form(self, problem, cf, t0=None):
-        """The guess for a covered ``problem`` whose canonical form ``cf`` is known."""
+        """The guess for a covered ``problem`` whose canonical form ``cf`` is known: the
+        selector's first head's guess, its variant, then those of the other heads in order as
+        candidates (module docstring)."""
         t0 = time.perf_counter() if t0 is None else t0
-        z, T, p, tc, nu, uf_c, sw_c = self.predict_canonical(cf.x, cf.T_ref)
+        parts = []
+        g = None
+        for z, T, p, tc, nu, uf_c, sw_c in self.predict_heads(cf.x, cf.T_ref):
+            pair = self._head_guesses(problem, cf, z, T, p, tc, nu, uf_c, sw_c)
+            if g is None:
+                g = pair[0]
+            parts += pair
+        self.last_inference_s = time.perf_counter() - t0
+        g.candidates = parts[1:]
+        return g
+
+    @staticmethod
+    def _head_guesses(problem, cf, z, T, p, tc, nu, uf_c, sw_c):
+        """One head's guess and its variant (with or without the touches)."""
         used = range(len(problem.cones))
         c0, tf, sw, uf, touches = solution_from_canonical(problem, cf, z, T, sw_c, uf_c,
                                                           [(k, tc[k], nu[k]) for k in used])
-        self.last_inference_s = time.perf_counter() - t0
         rows = dict(zip(used, touches))      # per slot: (problem cone, time, multiplier)
         touched = [k for k in used if p[k] >= 0.5]
         no_touch = Guess(c0, tf, sw, uf, source="learned")
+        out = []
         if touched:
-            g = Guess(c0, tf, sw, uf, source="learned", touches=[rows[k] for k in touched])
-            g.candidates.append(no_touch)
+            out = [Guess(c0, tf, sw, uf, source="learned", touches=[rows[k] for k in touched]), no_touch]
         else:
-            g = no_touch
+            out = [no_touch]
             best = max(used, key=lambda k: p[k])
             if p[best] >= SECOND_TOUCH_PROB:
-                g.candidates.append(Guess(c0, tf, sw, uf, source="learned-touch", touches=[rows[best]]))
-        g.touch_probabilities = {int(cf.slots[k]): float(p[k]) for k in used}
-        return g
+                out.append(Guess(c0, tf, sw, uf, source="learned-touch", touches=[rows[best]]))
+        out[0].touch_probabilities = {int(cf.slots[k]): float(p[k]) for k in used}
+        return out

@@ -27,6 +27,18 @@ N_IN = N_CONE_FEATURES
 
 
 def training_arrays(paths, family="pointing-cones", max_switches=5) -> dict:
+    from .table_data import check_not_in_table, cone_table_arrays, is_table, joined
+    paths = [paths] if isinstance(paths, (str, bytes)) or hasattr(paths, "__fspath__") else list(paths)
+    tables = [p for p in paths if is_table(p)]
+    if tables:      # a solution table, and any dataset files beside it (none holding its solutions)
+        files = [p for p in paths if not is_table(p)]
+        parts = [cone_table_arrays(p, max_switches) for p in tables]
+        if files:
+            more = training_arrays(files, family, max_switches)
+            for t, path in zip(parts, tables):
+                check_not_in_table(more, t, path)
+            parts.append(more)
+        return joined(parts)
     rows = []
     n_double = n_overflow = 0
     counts = {}
@@ -85,6 +97,95 @@ def nearest_table(paths, max_switches=5, k=3):
 
 
 def losses(out, batch, cfg, torch):
+    """Total loss, its parts and validation metrics (see ``training.warmstart.train``).
+
+    A network with ``cfg["heads"]`` K > 1 outputs K solution blocks and K selector logits
+    (``solvers.warmstart.cone_model``). Each problem's loss is that of the head that predicts its
+    solution best (winner takes all), plus ``wta_eps`` (default 0.05) of the others' mean so that
+    no head is left untrained, plus ``loss_weights.select`` (default 0.2) times the selector's
+    cross-entropy against the winning head. The metrics are those of the head the selector
+    ranks first, with ``structure_acc_any_head`` (some head has the whole structure right) and
+    ``selector_acc`` (the selector picks the winner)."""
+    heads = int(cfg.get("heads", 1))
+    if heads == 1:
+        return _one_head(out, batch, cfg, torch)
+    F = torch.nn.functional
+    per = cone_output_layout(int(cfg["max_switches"]))["times_logit"][1]
+    outs = out[:, :heads * per].reshape(-1, heads, per)
+    sel = out[:, heads * per:]
+    # per problem and head: the total of _one_head for that problem alone, in the same units
+    # (each part divided by its batch-wide normaliser, so the batch mean equals _one_head's total)
+    norms = _normalisers(batch, torch)
+    L = torch.stack([_per_problem(outs[:, h], batch, cfg, torch, norms)[0] for h in range(heads)], dim=1)
+    win = L.detach().argmin(dim=1)
+    eps = float(cfg.get("wta_eps", 0.05))
+    wt = torch.full_like(L, eps / (heads - 1))
+    wt.scatter_(1, win[:, None], 1.0 - eps)
+    l_sel = F.cross_entropy(sel, win)
+    total = (L * wt).sum(dim=1).mean() + float(cfg.get("loss_weights", {}).get("select", 0.2)) * l_sel
+    top = sel.detach().argmax(dim=1)
+    rows = torch.arange(out.shape[0])
+    _, parts, metrics = _one_head(outs[rows, top], batch, cfg, torch)
+    with torch.no_grad():
+        right = torch.stack([_structure_right(outs[:, h], batch, cfg) for h in range(heads)], dim=1)
+        metrics["structure_acc_any_head"] = float(right.any(dim=1).float().mean())
+        metrics["selector_acc"] = float((top == win).float().mean())
+    parts["select"] = float(l_sel.detach())
+    return total, parts, metrics
+
+
+def _normalisers(batch, torch):
+    """The batch-wide counts ``_one_head`` divides its masked sums by."""
+    return {"present": batch["present"].sum().clamp_min(1) / batch["present"].shape[0],
+            "touch": torch.isfinite(batch["frac"]).sum().clamp_min(1) / batch["frac"].shape[0],
+            "switch": torch.isfinite(batch["F"]).sum().clamp_min(1) / batch["F"].shape[0]}
+
+
+def _per_problem(out, batch, cfg, torch, norms):
+    """``(total, parts)``, each a vector over the batch's problems, for one head's block ``out``."""
+    F = torch.nn.functional
+    K = int(cfg["max_switches"])
+    L = cone_output_layout(K)
+    z = out[:, slice(*L["z"])]
+    nz = z.norm(dim=1, keepdim=True).clamp_min(1e-8)
+    l_z = ((z / nz - batch["Z"]) ** 2).sum(dim=1) + 0.01 * ((nz[:, 0] - 1.0) ** 2)
+    l_T = (out[:, L["log_T_ratio"][0]] - batch["log_T_ratio"]) ** 2
+    pres = batch["present"]
+    logit = out[:, slice(*L["touch_logit"])]
+    l_p = (F.binary_cross_entropy_with_logits(logit, batch["touch"], reduction="none") * pres).sum(dim=1) / norms["present"]
+    mask = torch.isfinite(batch["frac"])
+    tf_ = torch.sigmoid(out[:, slice(*L["touch_time_logit"])])
+    l_t = (((tf_ - torch.where(mask, batch["frac"], torch.zeros_like(tf_))) ** 2) * mask).sum(dim=1) / norms["touch"]
+    lnu = out[:, slice(*L["log_nu"])]
+    l_nu = (((lnu - torch.where(mask, batch["log_nu"], torch.zeros_like(lnu))) ** 2) * mask).sum(dim=1) / norms["touch"]
+    l_u = F.binary_cross_entropy_with_logits(out[:, slice(*L["u_first_logit"])], (batch["U"] > 0).float(),
+                                             reduction="none").mean(dim=1)
+    cl = out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1)
+    l_c = F.cross_entropy(cl.reshape(-1, K + 1), batch["counts"].reshape(-1), reduction="none").reshape(-1, 3).mean(dim=1)
+    sl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
+    smask = torch.isfinite(batch["F"])
+    l_s = (((sl - torch.where(smask, batch["F"], torch.zeros_like(sl))) ** 2) * smask).sum(dim=(1, 2)) / norms["switch"]
+    w = cfg.get("loss_weights", {})
+    total = (w.get("z", 1.0) * l_z + w.get("log_T", 4.0) * l_T + w.get("touch", 0.2) * l_p
+             + w.get("touch_times", 2.0) * l_t + w.get("log_nu", 0.1) * l_nu + w.get("u_first", 0.2) * l_u
+             + w.get("counts", 0.2) * l_c + w.get("times", 2.0) * l_s)
+    return total, {"z": l_z, "log_T": l_T, "touch": l_p, "touch_times": l_t, "log_nu": l_nu, "u_first": l_u,
+                   "counts": l_c, "times": l_s}
+
+
+def _structure_right(out, batch, cfg):
+    """Per problem: the head ``out`` has the touch set, the first-arc signs and the switch
+    counts all right (the structure the switch-time Newton needs)."""
+    K = int(cfg["max_switches"])
+    L = cone_output_layout(K)
+    pres = batch["present"]
+    touch = (((out[:, slice(*L["touch_logit"])] >= 0).float() == batch["touch"]) | (pres == 0)).all(dim=1)
+    signs = ((out[:, slice(*L["u_first_logit"])] >= 0) == (batch["U"] > 0)).all(dim=1)
+    counts = (out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1).argmax(dim=2) == batch["counts"]).all(dim=1)
+    return touch & signs & counts
+
+
+def _one_head(out, batch, cfg, torch):
     """Total loss, its parts and validation metrics (see ``training.warmstart.train``)."""
     F = torch.nn.functional
     K = int(cfg["max_switches"])
@@ -124,6 +225,7 @@ def losses(out, batch, cfg, torch):
             "u_first_acc": float(((out[:, slice(*L["u_first_logit"])] >= 0) == (batch["U"] > 0)).all(dim=1).float().mean()),
             "structure_acc": float((cl.argmax(dim=2) == batch["counts"]).all(dim=1).float().mean()),
             "switch_time_err_median": float((sl - batch["F"])[smask].abs().median()) if bool(smask.any()) else math.nan,
+            "whole_structure_acc": float(_structure_right(out, batch, cfg).float().mean()),
         }
     parts = {k: float(v.detach()) for k, v in (("z", l_z), ("log_T", l_T), ("touch", l_p), ("touch_times", l_t),
                                                 ("log_nu", l_nu), ("u_first", l_u), ("counts", l_c), ("times", l_s))}

@@ -153,14 +153,22 @@ def _uncovered(spans, domain) -> list:
     return bad
 
 
+def data_meta(path) -> dict:
+    """The metadata of a ``--data`` file: a dataset file's first line, or what a solution table
+    (``NAME.nn.npz``, ``table_data``) records."""
+    from .table_data import is_table, table_meta
+    return table_meta(path) if is_table(path) else ds.read_meta(path)
+
+
 def check_domain(paths, domain: dict) -> None:
     """Refuse data that do not match the config's ``domain`` (see above): a ``ValueError``
-    naming the file and the field, or, for a part of the domain no file reaches, the field."""
+    naming the file and the field, or, for a part of the domain no file reaches, the field.
+    A solution table states no distribution: nothing is checked of it."""
     if not domain:
         return
     spans = []
     for path in paths:
-        span = data_span(ds.read_meta(path).get("distribution") or {})
+        span = data_span(data_meta(path).get("distribution") or {})
         bad = _outside(span, domain)
         if bad:
             field, what = bad[0]
@@ -178,13 +186,21 @@ def check_distinct(paths) -> None:
     """Refuse two data files that hold the same problems: the same file twice, or two files of
     one family, seed and distribution (problem ``index`` is drawn from exactly these, so their
     records pair up index by index). The split would put one copy of a problem in training and
-    the other in validation, and the validation metrics would flatter the model."""
+    the other in validation, and the validation metrics would flatter the model. One solution
+    table (``table_data``) at most; a dataset file given beside it must not hold its solutions
+    (``table_data.check_not_in_table``, when the arrays are built)."""
+    from .table_data import is_table
+    tables = [p for p in paths if is_table(p)]
+    if len(tables) > 1:
+        raise ValueError(f"--data: one solution table at most ({tables[0]}, {tables[1]}): tables record no seeds, so "
+                         f"two could hold the same solutions unseen; give the dataset files instead")
     seen = {}
     for path in paths:
         try:
-            meta = ds.read_meta(path)
+            meta = data_meta(path)
         except ValueError as e:      # the first look at --data's files: name the option
-            raise ValueError(f"--data: {e}") from None
+            msg = str(e)
+            raise ValueError(msg if msg.startswith("--data") else f"--data: {msg}") from None
         key = json.dumps([meta.get("family"), meta.get("seed"), meta.get("distribution")], sort_keys=True)
         if key in seen:
             same = "is given twice" if os.path.realpath(seen[key]) == os.path.realpath(path) else \

@@ -324,13 +324,14 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
 
 def check_train_data(train_data, family) -> None:
     """``--train-data`` files are datasets of the held-out family (another family's records have
-    no canonical form of this one: the error named neither the option nor the file)."""
-    from ..dataset import read_meta
+    no canonical form of this one: the error named neither the option nor the file); a
+    pointing-cones solution table (``NAME.nn.npz``) is taken as its solutions."""
+    from .data import data_meta
     for path in train_data or []:
         try:
-            meta = read_meta(path)
+            meta = data_meta(path)
         except ValueError as e:
-            raise ValueError(f"--train-data: {e}") from None
+            raise ValueError(f"--train-data: {str(e).removeprefix('--data: ')}") from None
         if meta.get("family") != family:
             raise ValueError(f"--train-data: {path}: family {meta.get('family')!r}, not the held-out problems' "
                              f"--family {family!r}")
@@ -341,7 +342,7 @@ def held_out_in_training(family, seed, train_data=None, model=None) -> list:
     records them since session 35), whose problems are the held-out ones: the same family, seed
     and distribution draw the same problems, index by index."""
     from training.generate import GenerationSpec
-    from ..dataset import read_meta
+    from .data import data_meta
     dist = GenerationSpec(family, seed=seed).distribution_dict()
 
     def same(fam, s, d):
@@ -350,7 +351,7 @@ def held_out_in_training(family, seed, train_data=None, model=None) -> list:
                 and all(d[k] == dist[k] for k in d.keys() & dist.keys()))
     hits = []
     for path in train_data or []:
-        meta = read_meta(path)
+        meta = data_meta(path)      # (a solution table records no seed: it cannot be told)
         if same(meta.get("family"), meta.get("seed"), meta.get("distribution")):
             hits.append(os.fspath(path))
     card = getattr(model, "card", None) or {}

@@ -31,8 +31,7 @@ import time
 import numpy as np
 import yaml
 
-from ..dataset import read_meta
-from .data import check_distinct, check_domain, split, training_arrays
+from .data import check_distinct, check_domain, data_meta, split, training_arrays
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "configs", "full-attitude.yaml")
 
@@ -47,6 +46,15 @@ def load_config(path=None, overrides=None) -> dict:
             raise ValueError(f"config: missing key {key!r}")
     if int(cfg["epochs"]) < 1:
         raise ValueError(f"config.epochs: must be ≥ 1, got {cfg['epochs']}")
+    heads = cfg.get("heads", 1)
+    if isinstance(heads, bool) or not isinstance(heads, int) or heads < 1:
+        raise ValueError(f"config.heads: expected a whole number ≥ 1, got {heads!r}")
+    if heads > 1 and cfg.get("family") != "pointing-cones":
+        raise ValueError(f"config.heads: several heads ({heads}) are built for the pointing-cones family only, "
+                         f"got family {cfg.get('family')!r}")
+    eps = cfg.get("wta_eps", 0.05)
+    if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not 0.0 <= eps < 1.0:
+        raise ValueError(f"config.wta_eps: expected a number in [0, 1), got {eps!r}")
     return cfg
 
 
@@ -61,7 +69,7 @@ def _net(cfg, torch):
     if _is_cones(cfg):
         from solvers.warmstart.cone_model import cone_output_size
         from .cone_data import N_IN as n_in
-        n_out = cone_output_size(int(cfg["max_switches"]))
+        n_out = cone_output_size(int(cfg["max_switches"]), int(cfg.get("heads", 1)))
     else:
         n_in, n_out = N_FEATURES, output_size(int(cfg["max_switches"]))
     layers = []
@@ -137,6 +145,10 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
     out = os.fspath(out)
     data_paths = [os.fspath(p) for p in data_paths]
     check_distinct(data_paths)
+    from .table_data import is_table
+    if not _is_cones(cfg) and any(is_table(p) for p in data_paths):
+        raise ValueError(f"--data: {next(p for p in data_paths if is_table(p))} is a solution table, which trains the "
+                         f"pointing-cones network only (the config's family is {cfg.get('family')!r})")
     check_domain(data_paths, cfg.get("domain"))
     identity = run_identity(cfg, seed, data_paths)
     # before the data load: a refused --resume is known at once
@@ -257,9 +269,10 @@ def data_files(data_paths, sha256) -> list:
     are these)."""
     out = []
     for path, sha in zip(data_paths, sha256):
-        meta = read_meta(path)
+        meta = data_meta(path)
         out.append({"file": os.path.basename(path), "sha256": sha, "family": meta.get("family"),
-                    "seed": meta.get("seed"), "distribution": meta.get("distribution")})
+                    "seed": meta.get("seed"), "distribution": meta.get("distribution"),
+                    **({"table": True} if meta.get("table") else {})})
     return out
 
 
@@ -412,6 +425,7 @@ def export(net, cfg, x_mean, x_std, training_info, path):
             "activation": cfg.get("activation", "silu"), "max_switches": K, "kind": cls.KIND,
             "output_layout": {k: list(v) for k, v in layout.items()},
             "hidden": list(cfg["hidden"]), "domain": cfg.get("domain", {}), "training": training_info,
+            **({"heads": int(cfg["heads"])} if int(cfg.get("heads", 1)) > 1 else {}),
             "slewopt_version": getattr(solvers, "__version__", "0.1.0"),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     m = cls([(W.astype(np.float64), b.astype(np.float64)) for W, b in weights], x_mean, x_std, card)
@@ -427,7 +441,8 @@ def write_card_md(card, path):
     n_params = None
     lines = [f"# Model card: {card.get('name')}", "",
              f"- format: {card.get('format')} v{card.get('format_version')}, sha256 of the weights `{card.get('sha256')}`",
-             f"- network: MLP {card.get('hidden')} ({card.get('activation')}), {card.get('max_switches')} switch slots per axis",
+             f"- network: MLP {card.get('hidden')} ({card.get('activation')}), {card.get('max_switches')} switch slots per axis"
+             + (f", {card['heads']} heads and a selector (winner-takes-all)" if card.get("heads", 1) > 1 else ""),
              f"- covers (domain): `{json.dumps(card.get('domain'))}`",
              f"- training family: {t.get('family')}; data files: {_data_names(t)}",
              f"- dataset: {t.get('n_records')} records, {t.get('n_exact_solutions')} exact solutions "
@@ -448,7 +463,8 @@ def _data_names(training) -> str:
     files = training.get("data_files")
     if not files:
         return ", ".join(training.get("data", []))
-    return ", ".join(f"{d['file']} (seed {d['seed']}, sha256 {str(d['sha256'])[:12]}…)" for d in files)
+    return ", ".join(f"{d['file']} ({'a solution table' if d.get('table') else 'seed ' + str(d['seed'])}, "
+                     f"sha256 {str(d['sha256'])[:12]}…)" for d in files)
 
 
 def _write_log(out, rows):
