@@ -54,9 +54,12 @@ def test_a_reader_that_stops_early_is_no_error(tmp_path):
     path = _write(tmp_path, {"inertia": [1, 1, 1], "qf": [0, 0, 0, 1]})
     r, w = os.pipe()
     os.close(r)
+    # block-buffered stdout, as from a shell (PYTHONUNBUFFERED would make every print meet the pipe
+    # inside the command's try, and hide a write that fails at exit)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
     try:
         proc = subprocess.run([sys.executable, "-m", "training.cli", "check", path], cwd=ROOT, stdout=w,
-                              stderr=subprocess.PIPE, text=True, timeout=120)
+                              stderr=subprocess.PIPE, text=True, timeout=120, env=env)
     finally:
         os.close(w)
     assert proc.returncode == 0, proc.stderr

@@ -1,6 +1,7 @@
 """``slew check PROBLEM.json``: validate a problem file and print what it describes."""
 import json
 import math
+import sys
 
 
 def add_arguments(p):
@@ -35,8 +36,10 @@ def run(args):
     try:
         print("\n".join(describe(prob)))
         print(json.dumps(prob.to_dict(), indent=2))
+        # a pipe's stdout is block-buffered: the write that meets the closed pipe is this one,
+        # not one at exit outside this try
+        sys.stdout.flush()
     except BrokenPipeError:      # `slew check X.json | head`: the reader has what it wanted
         import os
-        import sys
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
