@@ -144,6 +144,10 @@ def test_model_file_errors(tmp_path):
     with pytest.raises(ModelFileError, match="is not a .npz model file") as e:
         solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=str(js))
     assert "pickle" not in str(e.value)
+    # a directory given as the model: named, not a raw IsADirectoryError
+    (tmp_path / "adir.npz").mkdir()
+    with pytest.raises(ModelFileError, match="adir.npz cannot be read"):
+        solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start=str(tmp_path / "adir.npz"))
     # the command line's 'none' given from Python: the valid spellings, not "file not found: .../none"
     with pytest.raises(ValueError, match="pass None") as e:
         solve(SlewProblem(inertia=[1.0, 1.0, 1.0], qf=_axis_quat([1, 0, 0], 1.0)), warm_start="none")

@@ -73,8 +73,11 @@ def read_npz(path) -> dict:
     """All arrays of a model file; ``ModelFileError`` if it is missing or unreadable."""
     if not os.path.exists(path):
         raise ModelFileError(f"model: file not found: {path}")
-    with open(path, "rb") as f:
-        head = f.read(4)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as e:     # a directory, a file without read permission
+        raise ModelFileError(f"model: {path} cannot be read ({e.strerror or type(e).__name__})") from None
     if head != b"PK\x03\x04":
         # (np.load reads other formats too, and for a pickle suggests loading it unsafely)
         raise ModelFileError(f"model: {path} is not a .npz model file (a model is a zip archive of arrays "
