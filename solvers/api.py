@@ -422,7 +422,9 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         t0 = time.perf_counter()
         budget = float(options["time_budget"])
         legs = _fallback_legs(prob)
-        grid = _fallback_grid(prob, budget - (time.perf_counter() - t0), legs)
+        # (up to the method's own grid, which for a p-norm bound with a gyroscopic term is finer
+        # than the fallback's: a generous budget gives the answer without a budget)
+        grid = _fallback_grid(prob, budget - (time.perf_counter() - t0), legs, fine=True)
         sol = waypoint_slew.flyable_eigenaxis_answer(prob, n_grid=grid)
         sol.route = f"{sol.route}; profile steps fitted to the time budget, {budget:.3g} s"
         return sol
@@ -545,16 +547,18 @@ def _fallback_legs(prob) -> int:
     return plan.n_waypoints + 1 if isinstance(plan, waypoint_slew.WaypointPlan) else 1
 
 
-def _fallback_grid(prob, left=math.inf, legs=1):
+def _fallback_grid(prob, left=math.inf, legs=1, fine=False):
     """The fallback profile's angle steps, ``left`` seconds before the budget ends: the planner's
     default (``N_GRID``), or ``FALLBACK_GRID_PNORM_GYRO`` for a p-norm bound with a gyroscopic
-    term, fewer where they would not fit in ``left`` (``FALLBACK_STEP_COST``, not below
-    ``FALLBACK_GRID_FLOOR``). ``legs``: profiles sharing ``left`` (a waypoint slew's; under a
-    p-norm bound each is costed as one with a gyroscopic term, their axes being the legs')."""
+    term (``fine``: ``method="eigenaxis"``'s own ``N_GRID_PNORM_GYRO``), fewer where they would not
+    fit in ``left`` (``FALLBACK_STEP_COST``, not below ``FALLBACK_GRID_FLOOR``). ``legs``: profiles
+    sharing ``left`` (a waypoint slew's; under a p-norm bound each is costed as one with a
+    gyroscopic term, their axes being the legs')."""
     from .eigenaxis import _checked, _phase_plane, reference_problem
+    from .eigenaxis_answer import N_GRID_PNORM_GYRO
     left = left / legs
     if not math.isinf(prob.torque_norm) and (legs > 1 or np.any(_phase_plane(_checked(reference_problem(prob)))[3])):
-        kind, grid = "pnorm-gyro", FALLBACK_GRID_PNORM_GYRO
+        kind, grid = "pnorm-gyro", N_GRID_PNORM_GYRO if fine else FALLBACK_GRID_PNORM_GYRO
     else:     # (a p-norm profile without a gyroscopic term is bang-coast-bang, exact on any grid)
         kind, grid = "no-gyro", N_GRID
     fixed, step = FALLBACK_STEP_COST[kind]
