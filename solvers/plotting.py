@@ -69,6 +69,26 @@ def switching_functions(sol) -> np.ndarray:
     return np.asarray(sol.costate, dtype=float)[:, 4:7] / np.asarray(sol.problem.inertia, dtype=float)
 
 
+def sampled_sign_changes(t, u) -> list:
+    """Per axis, the instants where the sampled torque ``u`` (n, 3) changes sign, each where the
+    line between the two samples around it crosses zero (a zero sample between opposite signs
+    counts once)."""
+    out = []
+    for i in range(3):
+        ts = []
+        last = None                 # (t, u) of the last sample with a sign
+        for k in range(len(t)):
+            v = float(u[k, i])
+            if v == 0.0 or not np.isfinite(v):
+                continue
+            if last is not None and (last[1] > 0.0) != (v > 0.0):
+                t0, v0 = last
+                ts.append(t0 + (t[k] - t0) * v0 / (v0 - v))
+            last = (float(t[k]), v)
+        out.append(np.asarray(ts))
+    return out
+
+
 def _new_figure(path, figsize):
     if path is None:
         import matplotlib.pyplot as plt
@@ -121,6 +141,9 @@ def plot_solution(sol, path=None, dpi=120):
     # the switch instants are the control of a bang-bang answer; of an answer whose control is its
     # samples (collocation, the eigenaxis slew) they are only where the sampled torque changes sign
     bang = getattr(sol, "control_law", "") in ("bang-bang", "costate")
+    if not bang and not any(len(a) for a in sw):
+        # answers whose record lists none (the eigenaxis slew, penalised answers): from the samples
+        sw = sampled_sign_changes(t, u)
     n_sw = 0
     for i in range(3):
         for ts in sw[i]:

@@ -145,3 +145,25 @@ def test_a_sampled_control_shows_sign_changes_and_the_rate_limits(tmp_path):
     assert {"rate_max x", "rate_max y", "rate_max z", "‖ω‖", "rate_norm_max"} <= set(labels)
     limits = [ln for ln in ax_w.get_lines() if ln.get_label() == "rate_max x"]
     assert float(np.asarray(limits[0].get_ydata())[0]) == pytest.approx(0.9)
+
+
+def test_the_eigenaxis_answer_shows_the_sign_changes_of_its_samples(tmp_path):
+    """The eigenaxis answer lists no switch instants: its torque panel counts the sign changes of
+    its samples (a review had '0 sign changes' under a torque that reverses on every axis)."""
+    from solvers import solve
+    from solvers.plotting import plot_solution, sampled_sign_changes
+    prob = SlewProblem.from_dict(json.loads((EXAMPLES / "r3_seed_report_per_axis.json").read_text()))
+    sol = solve(prob, method="eigenaxis")
+    assert sol.success and not any(len(a) for a in sol.switch_times)
+    sw = sampled_sign_changes(np.asarray(sol.t), np.asarray(sol.u))
+    # J = I: speed up, then brake about the eigenaxis: each axis reverses once, at tf / 2
+    assert [len(a) for a in sw] == [1, 1, 1]
+    np.testing.assert_allclose(np.concatenate(sw), sol.tf / 2, rtol=1e-6)
+    fig = plot_solution(sol, tmp_path / "e.png")
+    assert "(3 sign changes of the sampled torque" in fig.axes[2].get_title(loc="left")
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    u = np.array([[1.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, -2.0, 0.0], [1.0, 2.0, 0.0]])
+    got = sampled_sign_changes(t, u)
+    np.testing.assert_allclose(got[0], [0.5, 2.5])
+    np.testing.assert_allclose(got[1], [2.0 / 3.0, 2.5])    # (the zero sample between: one change)
+    assert got[2].size == 0
