@@ -137,8 +137,12 @@ def load_kernels(problems=None, method: str = "auto", warm_start="default") -> f
     collocation, where the shipped warm start does not; a user review measured a first such solve
     under a 0.02 s budget at 197 ms after ``load_kernels([p])`` had loaded the default route)."""
     from .api import METHODS
+    from . import warmstart as _ws
     if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"method: expected one of {list(METHODS)}, got {method!r:.60}")
+    # as solve checks it (a misspelt or missing model had built no NLPs, silently): 'none' from
+    # Python, a number, a missing file raise here, naming warm_start
+    _ws.resolve(warm_start)
     if problems is None:
         kinds = [(b, t, c) for b in ("per-axis", "p-norm") for t in ("full", "pointing") for c in (False, True)]
     else:

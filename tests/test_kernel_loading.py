@@ -119,6 +119,14 @@ def test_load_kernels_checks_its_input():
         solvers.load_kernels("full-attitude")
     with pytest.raises(ValueError, match="inertia"):
         solvers.load_kernels([{"inertia": [1, -1, 1], "qf": [0, 1, 0, 0]}])
+    # warm_start as solve checks it (a review: these had built no NLPs and said nothing)
+    p = {"inertia": [1, 1, 1], "qf": [0, 1, 0, 0]}
+    with pytest.raises(ValueError, match="warm_start: 'none' is no model name"):
+        solvers.load_kernels([p], warm_start="none")
+    with pytest.raises(ValueError, match="warm_start: expected"):
+        solvers.load_kernels([p], warm_start=42)
+    with pytest.raises(ValueError, match="file not found"):
+        solvers.load_kernels([p], warm_start="/no/such/model.npz")
 
 
 def test_evaluation_workers_load_their_familys_kernels():
