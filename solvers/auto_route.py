@@ -186,14 +186,14 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             if ex is not None:
                 ex.wall_time = spent()
                 return ex
-            bang.route = f"auto: collocation ({col.wall_time:.3g} s; {why[:250]}) → {bang.route}"
+            bang.route = f"auto: collocation ({col.wall_time:.3g} s; {_clipped(why, 250)}) → {bang.route}"
             bang.wall_time = spent()
             return bang
         if prob.qf is None:
             # a pointing target: the switch-time optimisation that leaves the roll free
             bang = cone_routes.bang_bang_cones(prob, col, options, budget - spent())
             if bang is not None:
-                bang.route = f"auto: collocation ({col.wall_time:.3g} s; {why[:250]}) → {bang.route}"
+                bang.route = f"auto: collocation ({col.wall_time:.3g} s; {_clipped(why, 250)}) → {bang.route}"
                 bang.wall_time = spent()
                 return bang
         if ref is None and budget - spent() > 0.05:
@@ -202,7 +202,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             if accepted:
                 return ref
             why += f"; no switch-time answer; exact refinement then not certified: {why_ref}"
-        col.route = f"auto: collocation ({col.route}; {why[:300]})"
+        col.route = f"auto: collocation ({col.route}; {_clipped(why, 500)})"
         col.message = (f"{col.message} Collocation answer (approximate, its own tolerances); the exact "
                        f"bang-bang refinement was not certified.")
         col.wall_time = spent()
@@ -230,6 +230,16 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     ind.route = f"auto: collocation failed ({col.message[:200]}) → indirect multi-start: {ind.route}"
     ind.wall_time = spent()
     return ind
+
+
+def _clipped(text, n) -> str:
+    """``text`` in at most about ``n`` characters: its start and its end (where a later stage's
+    reason is appended) with an ellipsis between, not its first ``n`` (which cut the last reason
+    off mid-word)."""
+    if len(text) <= n:
+        return text
+    head = n // 3
+    return f"{text[:head]} … {text[len(text) - (n - head - 3):]}"
 
 
 def _worst_excess(sol) -> float:

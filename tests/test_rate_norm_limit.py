@@ -73,6 +73,9 @@ def test_auto_keeps_the_norm_and_beats_the_box_workaround():
     # (bang-coast-bang at r) 102.2173 s is feasible
     assert 90.0 < sol.tf <= 102.2174
     assert sol.tf == pytest.approx(102.005, abs=2e-3)          # examples/README.md (collocation)
+    # the route names the rate-limited coast and keeps the last stage's reason whole (it had been
+    # cut after 300 characters, mid-word); its middle may be elided
+    assert "rate-limited coast" in sol.route and sol.route.endswith("(tolerance 1))")
     # the conservative box r/√3 per axis (what a user had to give) is much slower
     box = solvers.solve(A1.replace(rate_max=R / math.sqrt(3)))
     assert box.success and sol.tf < 0.8 * box.tf
