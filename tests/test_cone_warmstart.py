@@ -324,6 +324,31 @@ def test_the_tables_nearest_rows_are_the_brute_force_ones():
         ConeNearestNeighbourModel(bad)
 
 
+def test_the_query_scans_its_cone_count_first_and_the_whole_table_when_it_must(monkeypatch):
+    """The rows of the query's cone count are scanned first; where their k-th is not provably
+    nearer than every row of another count (the bound), the whole table is scanned: the result
+    is the brute-force one either way."""
+    from solvers.core import warmstart_kernels as _k
+    from solvers.warmstart import default_cone_model
+    table = default_cone_model().table
+    Xs = table.a["X"] / table.scale
+    full_scans = []
+    real = _k.nearest_rows
+    monkeypatch.setattr(_k, "nearest_rows", lambda XT, *a: full_scans.append(XT.shape[1]) or real(XT, *a))
+    counts = (table.a["X"][:, [13, 18, 23]] > 0.5).sum(axis=1)
+    for c in (1, 2, 3):
+        j = int(np.flatnonzero(counts == c)[0])
+        near = table.a["X"][j].copy()
+        far = near.copy()
+        far[3:6] = [0.05, 3.0, 0.05]        # an inertia far from every tabled one: every row is far
+        for x, scans in ((near, 0), (far, 1)):
+            full_scans.clear()
+            idx = table.nearest(x, 4)
+            d = np.sum((Xs - x / table.scale) ** 2, axis=1)
+            assert list(idx) == list(np.argsort(d, kind="stable")[:4])
+            assert full_scans == [table.a["X"].shape[0]] * scans, (c, scans)
+
+
 def test_a_tabled_row_maps_back_as_the_staged_reference_does():
     """``row_guess`` is one compiled call; on sampled problems (mirror forms, 1–3 cones,
     touches) its guesses equal the staged numpy path's, and a row with a non-finite multiplier

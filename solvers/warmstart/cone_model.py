@@ -164,18 +164,20 @@ class ConeWarmStartModel(WarmStartModel):
 
     def guess_from_form(self, problem, cf, t0=None):
         """The guess for a covered ``problem`` whose canonical form ``cf`` is known: the
-        selector's first head's guess, its variant, then those of the other heads in order as
-        candidates (module docstring)."""
+        selector's first head's guess, then as candidates its variant and the other heads'
+        guesses and variants in the selector's order (module docstring). Every head is decoded
+        now (one network pass); the later heads' guesses are deferred candidates, made when a
+        solver reaches them (``Guess.iter_all``)."""
         t0 = time.perf_counter() if t0 is None else t0
-        parts = []
-        g = None
-        for z, T, p, tc, nu, uf_c, sw_c in self.predict_heads(cf.x, cf.T_ref):
-            pair = self._head_guesses(problem, cf, z, T, p, tc, nu, uf_c, sw_c)
-            if g is None:
-                g = pair[0]
-            parts += pair
+        out = self.forward(np.asarray(cf.x, np.float64).reshape(-1))[0]
+        order = self.head_order(out)
+        first = self._head_guesses(problem, cf, *self._decode(out, int(order[0]), cf.T_ref))
+        g = first[0]
+        g.candidates = first[1:]
+        for h in order[1:]:
+            pair = _DeferredPair(self, problem, cf, out, int(h))
+            g.candidates += [pair.part(0), pair.part(1)]
         self.last_inference_s = time.perf_counter() - t0
-        g.candidates = parts[1:]
         return g
 
     @staticmethod
@@ -197,3 +199,20 @@ class ConeWarmStartModel(WarmStartModel):
                 out.append(Guess(c0, tf, sw, uf, source="learned-touch", touches=[rows[best]]))
         out[0].touch_probabilities = {int(cf.slots[k]): float(p[k]) for k in used}
         return out
+
+
+class _DeferredPair:
+    """One head's guess and variant (``head`` of the network's outputs ``out``), decoded and made
+    once when a deferred candidate first asks for them."""
+
+    def __init__(self, model, problem, cf, out, head):
+        self.model, self.problem, self.cf, self.out, self.head = model, problem, cf, out, head
+        self._pair = None
+
+    def part(self, k):
+        def make():
+            if self._pair is None:
+                m = self.model
+                self._pair = m._head_guesses(self.problem, self.cf, *m._decode(self.out, self.head, self.cf.T_ref))
+            return self._pair[k] if k < len(self._pair) else None
+        return make
