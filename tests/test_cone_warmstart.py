@@ -347,6 +347,21 @@ def test_the_query_scans_its_cone_count_first_and_the_whole_table_when_it_must(m
             d = np.sum((Xs - x / table.scale) ** 2, axis=1)
             assert list(idx) == list(np.argsort(d, kind="stable")[:4])
             assert full_scans == [table.a["X"].shape[0]] * scans, (c, scans)
+    # the bound is the query's own where it has the slot: a second cone smaller than any tabled
+    # one (a review found a table-wide bound wrong there), and a query whose absent slot is not
+    # zeros (not from the canonical form): the brute-force rows either way
+    rng = np.random.default_rng(5)
+    one = np.flatnonzero(counts == 1)
+    for n, j in enumerate(rng.permutation(one)[:300]):
+        x = table.a["X"][j].copy()
+        a = rng.normal(size=3)
+        x[14:17] = a / np.linalg.norm(a)
+        x[17] = np.radians(0.5)
+        x[18] = 1.0
+        if n % 3 == 0:
+            x[18] = 0.0                       # its flag cleared, its axis and angle kept
+        d = np.sum((Xs - x / table.scale) ** 2, axis=1)
+        assert list(table.nearest(x, 4)) == list(np.argsort(d, kind="stable")[:4])
 
 
 def test_a_tabled_row_maps_back_as_the_staged_reference_does():

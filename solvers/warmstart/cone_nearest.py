@@ -41,50 +41,73 @@ class ConeNearestNeighbourModel:
         self.k = int(k)
         self.domain = domain or {}
         self.name = name
+        # the data files its solutions came from, as slew train's card records them (a table
+        # exported since session 39; a table is trained on again: slew train --data NAME.nn.npz)
+        self.data_files = []
         self.scale = np.maximum(self.a["X"].std(axis=0), 1e-3)
         # standardised, transposed, float32: the layout of the compiled brute-force query
         self._XT = np.ascontiguousarray((self.a["X"] / self.scale).T, dtype=np.float32)
         self._group_tables()
 
     def _group_tables(self):
-        """The rows of each cone count apart (``nearest`` scans a query's own count first), and
-        a lower bound of the squared standardised distance between problems of different cone
-        counts: such problems differ in a slot that one has and the other has not, where one
-        row's presence flag, unit axis and half-angle face zeros: at least ``1/s_p² +
-        1/max(s_axis)² + (α_min/s_α)²`` with the slot's scales ``s`` and the smallest half-angle
-        ``α_min`` the table holds there."""
+        """The rows of each presence pattern of the cone slots apart (``nearest`` scans the
+        query's own pattern first), and per slot the least squared standardised distance that a
+        row having the slot adds against a problem lacking it (whose slot features are zeros):
+        ``1/s_p² + 1/max(s_axis)² + (α_min/s_α)²``, with the slot's scales ``s`` and the smallest
+        half-angle ``α_min`` the table holds there. Grouping needs the rows lacking a slot to have
+        zeros in its features (as the canonical form writes them); a table without that is
+        always scanned whole."""
         X = self.a["X"]
-        present = X[:, [9 + 5 * k + 4 for k in range(MAX_CONES)]] > 0.5
-        count = present.sum(axis=1)
+        slots = [slice(9 + 5 * k, 9 + 5 * k + 5) for k in range(MAX_CONES)]
+        present = np.stack([X[:, sl][:, 4] > 0.5 for sl in slots], axis=1)
         self._groups = {}
-        for c in np.unique(count):
-            rows = np.flatnonzero(count == c)
-            self._groups[int(c)] = (rows, np.ascontiguousarray(self._XT[:, rows]))
-        assert [9 + 5 * k + 4 for k in range(MAX_CONES)] == [13, 18, 23]     # (read so in nearest)
+        self._slot_bound = np.full(MAX_CONES, np.inf)
+        self._slot_has = present.any(axis=0)
+        self._slot_lacks = (~present).any(axis=0)
+        if any(np.any(X[~present[:, k], sl] != 0.0) for k, sl in enumerate(slots)):
+            return
+        s = self.scale
+        for k, sl in enumerate(slots):
+            if self._slot_has[k]:
+                b = sl.start
+                self._slot_bound[k] = (1.0 / s[b + 4] ** 2 + 1.0 / max(s[b:b + 3]) ** 2
+                                       + (float(X[present[:, k], b + 3].min()) / s[b + 3]) ** 2)
+        for pattern in np.unique(present, axis=0):
+            rows = np.flatnonzero((present == pattern).all(axis=1))
+            self._groups[tuple(bool(v) for v in pattern)] = (rows, np.ascontiguousarray(self._XT[:, rows]))
+
+    def _other_pattern_bound(self, xs, pattern) -> float:
+        """A lower bound of the squared standardised distance from the query (standardised
+        features ``xs``, slot presence ``pattern``) to every row of another pattern: such a row
+        differs from it in some slot, which one of them has and the other lacks. The query's
+        own slot (its features against the row's zeros): their exact sum; the row's: the
+        table's least (``_group_tables``)."""
         bound = np.inf
-        for k in range(MAX_CONES):
-            b = 9 + 5 * k
-            has = present[:, k]
-            if has.all() or not has.any():
-                continue        # (no two rows differ in this slot)
-            s = self.scale
-            bound = min(bound, 1.0 / s[b + 4] ** 2 + 1.0 / max(s[b:b + 3]) ** 2
-                        + (float(X[has, b + 3].min()) / s[b + 3]) ** 2)
-        self._other_count_bound = bound
+        for k, has in enumerate(pattern):
+            if has and self._slot_lacks[k]:
+                b = 9 + 5 * k
+                bound = min(bound, float(xs[b:b + 5] @ xs[b:b + 5]))
+            elif not has and self._slot_has[k]:
+                bound = min(bound, float(self._slot_bound[k]))
+        return bound
 
     @classmethod
     def from_card(cls, d, card, path):
         try:
-            return cls({key: d[key] for key in ARRAYS}, k=card.get("k", 3), domain=card.get("domain"),
-                       name=card.get("name", "nearest-neighbour (pointing-cones)"))
+            t = cls({key: d[key] for key in ARRAYS}, k=card.get("k", 3), domain=card.get("domain"),
+                    name=card.get("name", "nearest-neighbour (pointing-cones)"))
         except KeyError as e:
             raise ModelFileError(f"model: {path} lacks the array {e}") from None
+        t.data_files = list(card.get("data_files") or [])
+        return t
 
     def save(self, path, compact=False):
         """``compact``: float32 arrays, compressed (a shipped table; Newton polishes the
         neighbour's solution anyway)."""
         card = {"format": NN_FORMAT, "format_version": NN_FORMAT_VERSION, "kind": self.KIND, "k": self.k,
                 "domain": self.domain, "name": self.name}
+        if self.data_files:     # where its solutions came from (slew train's data_files)
+            card["data_files"] = self.data_files
         if compact:
             np.savez_compressed(path, **{key: v.astype(np.float32) for key, v in self.a.items()},
                                 card=np.array(json.dumps(card)))
@@ -106,14 +129,17 @@ class ConeNearestNeighbourModel:
         if x.shape != (self._XT.shape[0],) or not np.all(np.isfinite(x)):
             raise ValueError(f"x: expected {self._XT.shape[0]} finite canonical features, got {x!r:.80}")
         xs = x / self.scale
-        # the rows of the query's cone count first (a third of the table): where the k-th of
-        # them is nearer than any row of another count can be, they are the k nearest of all
-        # (93 % of held-out queries on the 15,760-row table; else the whole table is scanned)
+        # the rows of the query's pattern of cones first (a third of the table): where the k-th
+        # of them is nearer than any row of another pattern can be, they are the k nearest of all
+        # (93 % of held-out queries on the 15,760-row table; else the whole table is scanned).
+        # A query whose absent slot has features other than zeros is not grouped
         idx = np.empty(k, dtype=np.int64)
-        group = self._groups.get(int(x[13] > 0.5) + int(x[18] > 0.5) + int(x[23] > 0.5))   # (the presence flags)
-        if group is not None and group[0].size >= k:
+        pattern = (bool(x[13] > 0.5), bool(x[18] > 0.5), bool(x[23] > 0.5))     # (the presence flags)
+        group = self._groups.get(pattern)
+        if group is not None and group[0].size >= k and all(
+                has or not np.any(x[9 + 5 * j:14 + 5 * j]) for j, has in enumerate(pattern)):
             rows, XT = group
-            if _k.nearest_rows_kth(XT, xs, k, idx) < (1.0 - 1e-4) * self._other_count_bound:
+            if _k.nearest_rows_kth(XT, xs, k, idx) < (1.0 - 1e-4) * self._other_pattern_bound(xs, pattern):
                 return rows[idx]
         return _k.nearest_rows(self._XT, xs, k, idx)
 
