@@ -99,6 +99,42 @@ def test_the_ensemble_tries_every_head_after_the_neighbours():
     assert net[0].tf == pytest.approx(m.predict_canonical(cf.x, cf.T_ref, head=2)[1] * cf.tau, rel=1e-12)
 
 
+def _with_bad_head(m, head):
+    """``m`` with ``head``'s final time overflowing (its guess cannot be made)."""
+    L = cone_output_layout(K)
+    W, b = m.weights[-1]
+    b = b.copy()
+    b[head * PER + L["log_T_ratio"][0]] = 1e4
+    m.weights = m.weights[:-1] + [(W, b)]
+    return m
+
+
+def test_a_head_without_a_guess_is_passed_over_alone():
+    """A later head that cannot be decoded fails as its own candidate, once (its variant is
+    skipped), in the network's guess and in the ensemble; a first head that cannot is passed
+    over, the next one leads; none at all raises the first head's error."""
+    from solvers.warmstart import default_cone_model
+    from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
+    m = _with_bad_head(_heads_model(heads=3, first=1), 2)      # order 1, 0, 2: the last fails
+    errors = []
+    parts = list(m.guess(TOUCH).iter_all(errors))
+    assert 2 <= len(parts) <= 4 and len(errors) == 1 and "final time is inf" in errors[0]
+    ens = ConeEnsembleWarmStart(m, default_cone_model().table)
+    errors = []
+    parts = list(ens.guess(TOUCH).iter_all(errors))
+    assert [p.source for p in parts[:4]] == [f"nearest-neighbour[{k}]" for k in range(4)]
+    assert 2 <= len(parts) - 4 <= 4 and len(errors) == 1 and "final time is inf" in errors[0]
+    # the selector's first head fails: head 0 (next in order) leads
+    m = _with_bad_head(_heads_model(heads=3, first=1), 1)
+    cf = cone_canonical_form(TOUCH)
+    g = m.guess(TOUCH)
+    assert g.tf == pytest.approx(m.predict_canonical(cf.x, cf.T_ref, head=0)[1] * cf.tau, rel=1e-12)
+    for h in (0, 2):
+        m = _with_bad_head(m, h)
+    with pytest.raises(ValueError, match="final time is inf"):
+        m.guess(TOUCH)
+
+
 # --------------------------------------------------------------------------- the loss
 def _batch(torch, n=6, seed=1):
     rng = np.random.default_rng(seed)
@@ -276,8 +312,42 @@ def test_table_refusals_are_named(tmp_path, capsys):
                  "--no-progress"])
     err = capsys.readouterr().err
     assert code == 2 and "--data:" in err and "junk.nn.npz" in err and "Traceback" not in err
-    for r in ("r1", "r2", "r3", "r4"):
+    # a table whose arrays do not fit together: named by array, before any training
+    d = dict(np.load(table))
+    d["Z"] = d["Z"][:, :5]
+    np.savez(tmp_path / "badz.nn.npz", **d)
+    code = main(["train", "--config", CONFIG, "--data", str(tmp_path / "badz.nn.npz"), "--out", str(tmp_path / "r5"),
+                 "--epochs", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "badz.nn.npz: Z has shape (20, 5), expected (20, 6)" in err and "Traceback" not in err
+    for r in ("r1", "r2", "r3", "r4", "r5"):
         assert not (tmp_path / r).exists()
+
+
+def test_a_table_carries_its_data_files_into_the_next_training(tmp_path):
+    """An exported table's card names the data files it came from; a training from that table
+    records them (``sources``), and ``slew evaluate`` warns when its held-out problems are among
+    them: through the table given as --train-data, and through the model's card."""
+    pytest.importorskip("torch")
+    from training.dataset import read_meta
+    from training.warmstart.evaluate import held_out_in_training
+    from training.warmstart.train import train
+    data = os.path.join(HERE, "data", "pointing-cones-small.jsonl")
+    seed = read_meta(data)["seed"]
+    first = train([data], tmp_path / "r1", config=CONFIG, seed=0, epochs=1, progress_bar=False)
+    table = load_model(first["table"])
+    assert [d["file"] for d in table.data_files] == ["pointing-cones-small.jsonl"]
+    assert table.data_files[0]["seed"] == seed
+    second = train([first["table"]], tmp_path / "r2", config=CONFIG, seed=0, epochs=1, progress_bar=False)
+    m = load_model(second["model"])
+    entry = m.card["training"]["data_files"][0]
+    assert entry["table"] is True and entry["seed"] is None
+    assert [d["seed"] for d in entry["sources"]] == [seed]
+    hits = held_out_in_training("pointing-cones", seed, None, m)
+    assert hits == ["pointing-cones-small.jsonl (behind model.nn.npz, in the model's card)"]
+    hits = held_out_in_training("pointing-cones", seed, [first["table"]])
+    assert hits == [f"pointing-cones-small.jsonl (in {first['table']})"]
+    assert held_out_in_training("pointing-cones", seed + 1, [first["table"]], m) == []
 
 
 def test_evaluate_takes_a_table_as_train_data(tmp_path):

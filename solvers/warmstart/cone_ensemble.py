@@ -29,6 +29,8 @@ import numpy as np
 
 from slew_env import SlewProblem
 
+from ..guesses import Guess
+
 
 class ConeEnsembleWarmStart:
     """Neighbour solutions, then the network's guess (module docstring)."""
@@ -121,7 +123,8 @@ class ConeEnsembleWarmStart:
 class _NetworkParts:
     """The network's guess for one problem, made once when a deferred candidate first asks for
     it, as its plain parts: each head's guess, then its variant (with or without the touches),
-    each without candidates of its own."""
+    each without candidates of its own. The later heads stay deferred (the network's own
+    candidates): a head that fails is skipped alone, its error recorded once."""
 
     def __init__(self, network, problem, cf):
         self.network, self.problem, self.cf = network, problem, cf
@@ -131,19 +134,27 @@ class _NetworkParts:
     def _make(self):
         if self._parts is None and self._error is None:
             try:
-                parts = self.network.guess_from_form(self.problem, self.cf).all()
+                g = self.network.guess_from_form(self.problem, self.cf)
             except Exception as e:   # noqa: BLE001 - raised once (by the first part), remembered
                 self._error = e
                 raise
-            for g in parts:
-                g.candidates = []
+            parts = [g] + list(g.candidates)
+            g.candidates = []
             self._parts = parts
         return self._parts
 
     def part(self, k):
         """A deferred candidate: the network's ``k``-th part, or ``None`` if it has fewer (or if
-        the network failed: its first part raised the error, to be recorded once)."""
+        the network failed: its first part raised the error, to be recorded once). A part the
+        network deferred is made now (its own failure raised here, for this candidate only)."""
         def make():
             parts = self._make()
-            return parts[k] if parts is not None and k < len(parts) else None
+            if parts is None or k >= len(parts):
+                return None
+            part = parts[k]
+            if callable(part) and not isinstance(part, Guess):
+                part = parts[k] = part()
+                if part is not None:
+                    part.candidates = []
+            return part
         return make

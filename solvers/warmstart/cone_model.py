@@ -165,17 +165,27 @@ class ConeWarmStartModel(WarmStartModel):
     def guess_from_form(self, problem, cf, t0=None):
         """The guess for a covered ``problem`` whose canonical form ``cf`` is known: the
         selector's first head's guess, then as candidates its variant and the other heads'
-        guesses and variants in the selector's order (module docstring). Every head is decoded
-        now (one network pass); the later heads' guesses are deferred candidates, made when a
-        solver reaches them (``Guess.iter_all``)."""
+        guesses and variants in the selector's order (module docstring). One network pass; the
+        later heads are decoded and their guesses made only when a solver reaches them
+        (deferred candidates, ``Guess.iter_all``). A head whose outputs decode to no usable guess
+        (a final time that is not finite) is passed over: the first head that gives one leads,
+        a later one fails as its candidate; if none gives one, the first head's error is raised."""
         t0 = time.perf_counter() if t0 is None else t0
         out = self.forward(np.asarray(cf.x, np.float64).reshape(-1))[0]
-        order = self.head_order(out)
-        first = self._head_guesses(problem, cf, *self._decode(out, int(order[0]), cf.T_ref))
+        order = [int(h) for h in self.head_order(out)]
+        first, error = None, None
+        while order and first is None:
+            h = order.pop(0)
+            try:
+                first = self._head_guesses(problem, cf, *self._decode(out, h, cf.T_ref))
+            except ValueError as e:
+                error = error or e
+        if first is None:
+            raise error
         g = first[0]
         g.candidates = first[1:]
-        for h in order[1:]:
-            pair = _DeferredPair(self, problem, cf, out, int(h))
+        for h in order:
+            pair = _DeferredPair(self, problem, cf, out, h)
             g.candidates += [pair.part(0), pair.part(1)]
         self.last_inference_s = time.perf_counter() - t0
         return g
@@ -203,16 +213,25 @@ class ConeWarmStartModel(WarmStartModel):
 
 class _DeferredPair:
     """One head's guess and variant (``head`` of the network's outputs ``out``), decoded and made
-    once when a deferred candidate first asks for them."""
+    once when a deferred candidate first asks for them. A head that cannot be decoded raises its
+    error once, from its first part; its second part is then skipped (``None``)."""
 
     def __init__(self, model, problem, cf, out, head):
         self.model, self.problem, self.cf, self.out, self.head = model, problem, cf, out, head
         self._pair = None
+        self._failed = False
 
     def part(self, k):
         def make():
+            if self._failed:
+                return None
             if self._pair is None:
                 m = self.model
-                self._pair = m._head_guesses(self.problem, self.cf, *m._decode(self.out, self.head, self.cf.T_ref))
+                try:
+                    self._pair = m._head_guesses(self.problem, self.cf,
+                                                 *m._decode(self.out, self.head, self.cf.T_ref))
+                except Exception:    # noqa: BLE001 - recorded once by the caller (iter_all's errors)
+                    self._failed = True
+                    raise
             return self._pair[k] if k < len(self._pair) else None
         return make
