@@ -349,15 +349,23 @@ def held_out_in_training(family, seed, train_data=None, model=None) -> list:
         # on the fields both state: a file written before a field was added still counts
         return (fam == family and s == int(seed) and isinstance(d, dict)
                 and all(d[k] == dist[k] for k in d.keys() & dist.keys()))
+    def named(files, where):
+        # a table's entry names the data files of its own card (``sources``), checked in turn
+        out = []
+        for d in files or []:
+            if same(d.get("family"), d.get("seed"), d.get("distribution")):
+                out.append(f"{d.get('file')} ({where})")
+            out += named(d.get("sources"), f"behind {d.get('file')}, {where}")
+        return out
     hits = []
     for path in train_data or []:
-        meta = data_meta(path)      # (a solution table records no seed: it cannot be told)
+        meta = data_meta(path)      # (a solution table: the data files its card names)
         if same(meta.get("family"), meta.get("seed"), meta.get("distribution")):
             hits.append(os.fspath(path))
-    card = getattr(model, "card", None) or {}
-    for d in (card.get("training") or {}).get("data_files") or []:
-        if same(d.get("family"), d.get("seed"), d.get("distribution")):
-            hits.append(f"{d.get('file')} (in the model's card)")
+        hits += named(meta.get("sources"), f"in {os.fspath(path)}")
+    # the model's card, or for an ensemble (the shipped warm starts) its network's
+    card = getattr(model, "card", None) or getattr(getattr(model, "network", None), "card", None) or {}
+    hits += named((card.get("training") or {}).get("data_files"), "in the model's card")
     return hits
 
 

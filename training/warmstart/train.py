@@ -248,7 +248,8 @@ def train(data_paths, out, config=None, seed=0, epochs=None, resume=False, progr
         if _is_cones(cfg):
             # the shipped pointing-cones warm start tries the nearest solved problems first
             # (solvers.warmstart.cone_ensemble): their table, from the same data, goes next to the model
-            summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]))
+            summary["table"] = export_cone_table(data_paths, table_path(path), int(cfg["max_switches"]),
+                                                 data_files=card_training["data_files"])
         else:
             # the shipped full-attitude warm start tries them after the network's structured
             # candidates (solvers.warmstart.attitude_ensemble)
@@ -272,7 +273,9 @@ def data_files(data_paths, sha256) -> list:
         meta = data_meta(path)
         out.append({"file": os.path.basename(path), "sha256": sha, "family": meta.get("family"),
                     "seed": meta.get("seed"), "distribution": meta.get("distribution"),
-                    **({"table": True} if meta.get("table") else {})})
+                    # a table: the data files its own card names (none for tables exported before
+                    # session 39)
+                    **({"table": True, "sources": meta.get("sources", [])} if meta.get("table") else {})})
     return out
 
 
@@ -398,11 +401,13 @@ def export_attitude_table(data_paths, path, max_switches, domain, k=3):
     return path
 
 
-def export_cone_table(data_paths, path, max_switches, k=4):
+def export_cone_table(data_paths, path, max_switches, k=4, data_files=None):
     """The exact solutions of ``data_paths`` as a compact nearest-neighbour table (float32,
-    compressed; ``solvers.warmstart.cone_nearest``)."""
+    compressed; ``solvers.warmstart.cone_nearest``); ``data_files``: where they came from (the
+    card's), written into the table's card, so that a training from the table records them."""
     from .cone_data import nearest_table
     table = nearest_table(data_paths, max_switches, k)
+    table.data_files = list(data_files or [])
     table.name = f"pointing-cones solutions ({table.a['X'].shape[0]:,} exact)"
     table.save(path, compact=True)
     return path
@@ -445,8 +450,10 @@ def write_card_md(card, path):
              + (f", {card['heads']} heads and a selector (winner-takes-all)" if card.get("heads", 1) > 1 else ""),
              f"- covers (domain): `{json.dumps(card.get('domain'))}`",
              f"- training family: {t.get('family')}; data files: {_data_names(t)}",
-             f"- dataset: {t.get('n_records')} records, {t.get('n_exact_solutions')} exact solutions "
-             f"({t.get('n_train')} train / {t.get('n_val')} validation)",
+             f"- dataset: {t.get('n_records')} records"
+             + (" (a solution table's rows counted as records)" if any(d.get("table") for d in t.get("data_files") or [])
+                else "")
+             + f", {t.get('n_exact_solutions')} exact solutions ({t.get('n_train')} train / {t.get('n_val')} validation)",
              f"- epochs {t.get('epochs')}, seed {t.get('seed')}, training wall time {t.get('train_wall_time_s')} s, torch {t.get('torch')}",
              "", "Validation metrics (held-out 10 % of the exact solutions):", ""]
     for k, v in vm.items():
