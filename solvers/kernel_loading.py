@@ -142,7 +142,11 @@ def load_kernels(problems=None, method: str = "auto", warm_start="default") -> f
         raise ValueError(f"method: expected one of {list(METHODS)}, got {method!r:.60}")
     # as solve checks it (a misspelt or missing model had built no NLPs, silently): 'none' from
     # Python, a number, a missing file raise here, naming warm_start
-    _ws.resolve(warm_start)
+    try:
+        _ws.resolve(warm_start)
+    except ValueError as e:
+        msg = str(e)
+        raise type(e)(msg if msg.startswith("warm_start") else f"warm_start: {msg}") from None
     if problems is None:
         kinds = [(b, t, c) for b in ("per-axis", "p-norm") for t in ("full", "pointing") for c in (False, True)]
     else:

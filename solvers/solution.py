@@ -135,13 +135,15 @@ class SlewSolution:
         must stop torquing itself."""
         if self._control is None:
             raise ValueError("control: this solution has no trajectory")
-        if isinstance(t, (str, bytes, bool, np.bool_)) or (
-                isinstance(t, np.ndarray) and t.dtype.kind not in "iuf"):
-            raise ValueError(f"t: the instants must be numbers, got {type(t).__name__} {t!r:.80}")
         try:
-            tq = np.asarray(t, dtype=float)
+            raw = np.asarray(t)
         except (TypeError, ValueError):
-            raise ValueError(f"t: the instants must be numbers, got {t!r:.80}") from None
+            raw = None
+        # numbers only: text and booleans (also inside a list) are not instants ('0.5' and True
+        # had been read as 0.5 and 1.0)
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise ValueError(f"t: the instants must be numbers, got {type(t).__name__} {t!r:.80}")
+        tq = raw.astype(float)
         if not np.all(np.isfinite(tq)):
             # (a NaN instant would otherwise get a torque: the first arc's, by searchsorted)
             raise ValueError(f"t: the instants must be finite numbers, got {t!r:.80}")
