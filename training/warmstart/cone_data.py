@@ -100,10 +100,10 @@ def losses(out, batch, cfg, torch):
     """Total loss, its parts and validation metrics (see ``training.warmstart.train``).
 
     A network with ``cfg["heads"]`` K > 1 outputs K solution blocks and K selector logits
-    (``solvers.warmstart.cone_model``). Each problem's loss is that of the head that predicts its
-    solution best (winner takes all), plus ``wta_eps`` (default 0.05) of the others' mean so that
-    no head is left untrained, plus ``loss_weights.select`` (default 0.2) times the selector's
-    cross-entropy against the winning head. The metrics are those of the head the selector
+    (``solvers.warmstart.cone_model``). Each problem's loss is ``1 - wta_eps`` times that of the
+    head that predicts its solution best (winner takes all) plus ``wta_eps`` (default 0.05) times
+    the others' mean, so that no head is left untrained, plus ``loss_weights.select`` (default
+    0.2) times the selector's cross-entropy against the winning head. The metrics are those of the head the selector
     ranks first, with ``structure_acc_any_head`` (some head has the whole structure right) and
     ``selector_acc`` (the selector picks the winner)."""
     heads = int(cfg.get("heads", 1))

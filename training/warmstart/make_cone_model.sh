@@ -30,24 +30,32 @@ slew train --config training/warmstart/configs/pointing-cones.yaml \
            runs/data/pointing-cones-touch-s33.jsonl \
     --out runs/ws-cones-final --seed 0 --export runs/ws-cones-s31-33/pointing-cones.npz
 
-# 4. the evaluation in docs/WARMSTART.md (held-out problems of a fresh seed): the shipped warm
-#    start (table, then network); --model solvers/warmstart/models/pointing-cones.npz evaluates
-#    the network alone
+# 4. the evaluation of those files in docs/WARMSTART.md (held-out problems of a fresh seed; the
+#    57.7-62.2 % rows): it ran with them installed as the shipped ones; since session 39
+#    --model pointing-cones is the 8-head model of step 6 (step 7 evaluates that).
+#    --model solvers/warmstart/models/pointing-cones.npz evaluates the network alone
 slew evaluate --family pointing-cones --model pointing-cones \
     --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones \
     --train-data runs/data/pointing-cones-touch-s31.jsonl runs/data/pointing-cones-touch-s32.jsonl \
     runs/data/pointing-cones-touch-s33.jsonl
 
 # 5. (session 39) 10,000 more problems with the code of that day (solve_default: auto, whose cone
-#    challenger used a first 8-head network trained on the table alone): about 81 % exact
+#    challenger used a first 8-head network, trained on the table alone and installed as the
+#    shipped network while these ran: step 5a): 4,084 and 4,161 exact
+git show 77a1372:solvers/warmstart/models/pointing-cones.nn.npz > runs/data/pointing-cones-s31-33.nn.npz
+# 5a. (that day's command read the same table in place, solvers/warmstart/models/pointing-cones.nn.npz
+#     at 77a1372; only the network was installed, beside that table)
+slew train --config training/warmstart/configs/pointing-cones.yaml --data runs/data/pointing-cones-s31-33.nn.npz \
+    --out runs/ws-cones-heads-table --seed 0 --export runs/ws-cones-heads-table/export/pointing-cones.npz
+cp runs/ws-cones-heads-table/export/pointing-cones.npz solvers/warmstart/models/pointing-cones.npz
 slew generate --family pointing-cones --n 5000 --seed 34 -o runs/data/pointing-cones-s34.jsonl --workers 2
 slew generate --family pointing-cones --n 5000 --seed 35 -o runs/data/pointing-cones-s35.jsonl --workers 2
 
 # 6. the shipped network: 8 heads (training/warmstart/configs/pointing-cones.yaml), trained on
 #    the table as shipped before (the exact solutions of steps 1-2, sha256 6acbec74...; a rerun of
 #    step 3 gives other data, see the top) and the exact solutions of step 5; --export writes
-#    the network and the table of all these solutions (solvers/warmstart/cone_ensemble.py)
-git show 77a1372:solvers/warmstart/models/pointing-cones.nn.npz > runs/data/pointing-cones-s31-33.nn.npz
+#    the network and the table of all these solutions (solvers/warmstart/cone_ensemble.py), whose
+#    card names the data files
 slew train --config training/warmstart/configs/pointing-cones.yaml \
     --data runs/data/pointing-cones-s31-33.nn.npz runs/data/pointing-cones-s34.jsonl \
            runs/data/pointing-cones-s35.jsonl \
