@@ -82,6 +82,14 @@ def _load_kind(kind: tuple) -> None:
                 solve(prob, **kw)
             except Exception as e:      # noqa: BLE001 - see above
                 _ERRORS.setdefault(kind, []).append(f"{kw or 'default'}: {type(e).__name__}: {e}"[:300])
+    if kind[1] == "pointing" and kind[2]:
+        # the pointing-cones network's guesses (warm_start="pointing-cones", the challenger's
+        # candidates): the default route reads only its predicted tf, and a first guess made
+        # inside a route compiled a kernel signature there (the slow kernel-loading test)
+        try:
+            _load_cone_network(_representatives(kind)[0])
+        except Exception as e:          # noqa: BLE001 - as above
+            _ERRORS.setdefault(kind, []).append(f"cone network: {type(e).__name__}: {e}"[:300])
     if kind[2]:
         from .cone_penalty import load_kernels as load_penalty_kernels
         from .switch_time_cones import load_kernels as load_switch_time_cone_kernels
@@ -91,6 +99,15 @@ def _load_kind(kind: tuple) -> None:
     # learned guess fails, the default route with cones): they run after its NLP, which is not
     # worth solving here
     load_replay_kernels()
+
+
+def _load_cone_network(prob) -> None:
+    """Every guess of the shipped pointing-cones network for ``prob`` (its domain aside)."""
+    from . import warmstart
+    from .warmstart.cone_features import cone_unsupported_reason, form_of_supported
+    model = warmstart.default_cone_model()
+    if model is not None and cone_unsupported_reason(prob) is None:
+        model.network.guess_from_form(prob, form_of_supported(prob)).all()
 
 
 def ensure_kernels(problem: SlewProblem) -> float:
