@@ -135,12 +135,13 @@ class SlewSolution:
         must stop torquing itself."""
         if self._control is None:
             raise ValueError("control: this solution has no trajectory")
+        from slew_env.checks import has_bool, has_text
         try:
-            raw = np.asarray(t)
+            raw = None if has_bool(t) or has_text(t) else np.asarray(t)
         except (TypeError, ValueError):
             raw = None
-        # numbers only: text and booleans (also inside a list) are not instants ('0.5' and True
-        # had been read as 0.5 and 1.0)
+        # numbers only: text and booleans, also inside a list and beside numbers, are not instants
+        # ('0.5' and True had been read as 0.5 and 1.0)
         if raw is None or raw.dtype.kind not in "iuf":
             raise ValueError(f"t: the instants must be numbers, got {type(t).__name__} {t!r:.80}")
         tq = raw.astype(float)

@@ -362,6 +362,17 @@ def test_the_query_scans_its_cone_count_first_and_the_whole_table_when_it_must(m
             x[18] = 0.0                       # its flag cleared, its axis and angle kept
         d = np.sum((Xs - x / table.scale) ** 2, axis=1)
         assert list(table.nearest(x, 4)) == list(np.argsort(d, kind="stable")[:4])
+    # a table of rows that are not canonical (a flag of 0.6, a short axis): the bound is each
+    # row's own slot norm, not that of a unit axis and flag (a review's four-row case)
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    X = np.zeros((4, 24))
+    X[:, 0] = [-4.0, 4.0, 0.0, 9.0]
+    X[:, 1] = [5.0, -5.0, 0.0, 0.0]
+    X[2, 9:14] = [0.05, 0.0, 0.0, 0.02, 0.6]
+    X[3, 9:14] = [1.0, 0.0, 0.0, 0.5, 1.0]
+    odd = ConeNearestNeighbourModel({key: (X if key == "X" else v[:4]) for key, v in table.a.items()}, k=1)
+    d = np.sum((X / odd.scale) ** 2, axis=1)
+    assert list(odd.nearest(np.zeros(24), 1)) == [int(np.argmin(d))] == [2]
 
 
 def test_a_tabled_row_maps_back_as_the_staged_reference_does():

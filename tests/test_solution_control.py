@@ -64,7 +64,8 @@ def test_a_non_finite_instant_is_refused_by_name():
         with pytest.raises(ValueError, match="t: the instants must be finite"):
             sol.control(bad)
     # text and booleans are not instants (np.asarray had turned "0.5" into 0.5 and True into 1.0)
-    for bad in ("0.5", True, np.array(["0.5"]), [0.1, "x"], None, ["0.5"], [True, False], [b"0.5"]):
+    for bad in ("0.5", True, np.array(["0.5"]), [0.1, "x"], None, ["0.5"], [True, False], [b"0.5"], [0.5, True],
+                (0.5, np.True_)):
         with pytest.raises(ValueError, match="t: the instants must be"):
             sol.control(bad)
     np.testing.assert_array_equal(sol.control(np.int64(1)), sol.control(1.0))

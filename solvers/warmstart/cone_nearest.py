@@ -53,8 +53,7 @@ class ConeNearestNeighbourModel:
         """The rows of each presence pattern of the cone slots apart (``nearest`` scans the
         query's own pattern first), and per slot the least squared standardised distance that a
         row having the slot adds against a problem lacking it (whose slot features are zeros):
-        ``1/s_p² + 1/max(s_axis)² + (α_min/s_α)²``, with the slot's scales ``s`` and the smallest
-        half-angle ``α_min`` the table holds there. Grouping needs the rows lacking a slot to have
+        the least standardised norm of the slot's features over the rows that have it. Grouping needs the rows lacking a slot to have
         zeros in its features (as the canonical form writes them); a table without that is
         always scanned whole."""
         X = self.a["X"]
@@ -69,9 +68,10 @@ class ConeNearestNeighbourModel:
         s = self.scale
         for k, sl in enumerate(slots):
             if self._slot_has[k]:
-                b = sl.start
-                self._slot_bound[k] = (1.0 / s[b + 4] ** 2 + 1.0 / max(s[b:b + 3]) ** 2
-                                       + (float(X[present[:, k], b + 3].min()) / s[b + 3]) ** 2)
+                # exactly the least a row having the slot adds against zeros (a canonical row's
+                # flag, unit axis and half-angle add at least 1/s_p² + 1/max(s_axis)² +
+                # (α_min/s_α)²; any row: its own standardised slot norm)
+                self._slot_bound[k] = float(((X[present[:, k], sl] / s[sl]) ** 2).sum(axis=1).min())
         for pattern in np.unique(present, axis=0):
             rows = np.flatnonzero((present == pattern).all(axis=1))
             self._groups[tuple(bool(v) for v in pattern)] = (rows, np.ascontiguousarray(self._XT[:, rows]))
