@@ -154,16 +154,41 @@ def _batch(torch, n=6, seed=1):
     return {k: torch.tensor(v, dtype=torch.int64 if k == "counts" else torch.float32) for k, v in b.items()}
 
 
-def test_per_problem_losses_average_to_the_single_head_loss():
+def test_per_problem_losses_average_to_the_batch_losses():
+    """The batch mean of each per-problem part is the batch-level loss written out here: masked
+    parts divided by the batch's count of slots or instants they use, the others plain means."""
     torch = pytest.importorskip("torch")
     from training.warmstart.cone_data import _normalisers, _one_head, _per_problem
+    F = torch.nn.functional
+    L = cone_output_layout(K)
     cfg = {"max_switches": K, "loss_weights": {"z": 1.0, "log_T": 4.0, "log_nu": 1.0}}
     b = _batch(torch)
     out = torch.randn(6, PER, generator=torch.Generator().manual_seed(0))
-    total, _, _ = _one_head(out, b, cfg, torch)
-    per, _ = _per_problem(out, b, cfg, torch, _normalisers(b, torch))
-    assert per.shape == (6,)
-    assert float(per.mean()) == pytest.approx(float(total), rel=1e-5)
+    _, parts = _per_problem(out, b, cfg, torch, _normalisers(b, torch))
+    pres, mask, smask = b["present"], torch.isfinite(b["frac"]), torch.isfinite(b["F"])
+    z = out[:, slice(*L["z"])]
+    nz = z.norm(dim=1, keepdim=True)
+    tt = torch.sigmoid(out[:, slice(*L["touch_time_logit"])])
+    sl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
+    want = {
+        "z": ((z / nz - b["Z"]) ** 2).sum(dim=1).mean() + 0.01 * ((nz - 1.0) ** 2).mean(),
+        "log_T": ((out[:, L["log_T_ratio"][0]] - b["log_T_ratio"]) ** 2).mean(),
+        "touch": (F.binary_cross_entropy_with_logits(out[:, slice(*L["touch_logit"])], b["touch"],
+                                                     reduction="none") * pres).sum() / pres.sum(),
+        "touch_times": ((tt - torch.nan_to_num(b["frac"])) ** 2)[mask].sum() / mask.sum(),
+        "log_nu": ((out[:, slice(*L["log_nu"])] - torch.nan_to_num(b["log_nu"])) ** 2)[mask].sum() / mask.sum(),
+        "u_first": F.binary_cross_entropy_with_logits(out[:, slice(*L["u_first_logit"])], (b["U"] > 0).float()),
+        "counts": F.cross_entropy(out[:, slice(*L["count_logits"])].reshape(-1, K + 1), b["counts"].reshape(-1)),
+        "times": ((sl - torch.nan_to_num(b["F"])) ** 2)[smask].sum() / smask.sum(),
+    }
+    for key, value in want.items():
+        assert parts[key].shape == (6,)
+        assert float(parts[key].mean()) == pytest.approx(float(value), rel=1e-5), key
+    total, mean_parts, _ = _one_head(out, b, cfg, torch)
+    assert mean_parts["touch"] == pytest.approx(float(want["touch"]), rel=1e-5)
+    w = {"z": 1.0, "log_T": 4.0, "touch": 0.2, "touch_times": 2.0, "log_nu": 1.0, "u_first": 0.2, "counts": 0.2,
+         "times": 2.0}
+    assert float(total) == pytest.approx(float(sum(w[k] * want[k] for k in w)), rel=1e-5)
 
 
 def test_winner_takes_all_and_the_selector_learns_the_winner():

@@ -113,8 +113,8 @@ def losses(out, batch, cfg, torch):
     per = cone_output_layout(int(cfg["max_switches"]))["times_logit"][1]
     outs = out[:, :heads * per].reshape(-1, heads, per)
     sel = out[:, heads * per:]
-    # per problem and head: the total of _one_head for that problem alone, in the same units
-    # (each part divided by its batch-wide normaliser, so the batch mean equals _one_head's total)
+    # per problem and head: the total of _per_problem (each part divided by its batch-wide
+    # normaliser: the batch mean is one head's loss, _one_head's)
     norms = _normalisers(batch, torch)
     L = torch.stack([_per_problem(outs[:, h], batch, cfg, torch, norms)[0] for h in range(heads)], dim=1)
     win = L.detach().argmin(dim=1)
@@ -186,47 +186,31 @@ def _structure_right(out, batch, cfg):
 
 
 def _one_head(out, batch, cfg, torch):
-    """Total loss, its parts and validation metrics (see ``training.warmstart.train``)."""
-    F = torch.nn.functional
+    """Total loss, its parts (the batch means of ``_per_problem``'s) and validation metrics of one
+    head's block ``out`` (see ``training.warmstart.train``)."""
+    per, per_parts = _per_problem(out, batch, cfg, torch, _normalisers(batch, torch))
+    total = per.mean()
+    parts = {k: float(v.detach().mean()) for k, v in per_parts.items()}
     K = int(cfg["max_switches"])
     L = cone_output_layout(K)
-    z = out[:, slice(*L["z"])]
-    nz = z.norm(dim=1, keepdim=True).clamp_min(1e-8)
-    l_z = ((z / nz - batch["Z"]) ** 2).sum(dim=1).mean() + 0.01 * ((nz - 1.0) ** 2).mean()
-    l_T = ((out[:, L["log_T_ratio"][0]] - batch["log_T_ratio"]) ** 2).mean()
-    pres = batch["present"]
-    logit = out[:, slice(*L["touch_logit"])]
-    l_p = (F.binary_cross_entropy_with_logits(logit, batch["touch"], reduction="none") * pres).sum() / pres.sum()
-    mask = torch.isfinite(batch["frac"])
-    n_m = mask.sum().clamp_min(1)
-    tf_ = torch.sigmoid(out[:, slice(*L["touch_time_logit"])])
-    l_t = (((tf_ - torch.where(mask, batch["frac"], torch.zeros_like(tf_))) ** 2) * mask).sum() / n_m
-    lnu = out[:, slice(*L["log_nu"])]
-    l_nu = (((lnu - torch.where(mask, batch["log_nu"], torch.zeros_like(lnu))) ** 2) * mask).sum() / n_m
-    l_u = F.binary_cross_entropy_with_logits(out[:, slice(*L["u_first_logit"])], (batch["U"] > 0).float())
-    cl = out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1)
-    l_c = F.cross_entropy(cl.reshape(-1, K + 1), batch["counts"].reshape(-1))
-    sl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
-    smask = torch.isfinite(batch["F"])
-    l_s = (((sl - torch.where(smask, batch["F"], torch.zeros_like(sl))) ** 2) * smask).sum() / smask.sum().clamp_min(1)
-    w = cfg.get("loss_weights", {})
-    total = (w.get("z", 1.0) * l_z + w.get("log_T", 4.0) * l_T + w.get("touch", 0.2) * l_p
-             + w.get("touch_times", 2.0) * l_t + w.get("log_nu", 0.1) * l_nu + w.get("u_first", 0.2) * l_u
-             + w.get("counts", 0.2) * l_c + w.get("times", 2.0) * l_s)
     with torch.no_grad():
-        cos = ((z / nz) * batch["Z"]).sum(dim=1)
-        pred = (logit >= 0).float()
-        same = ((pred == batch["touch"]) | (pres == 0)).all(dim=1).float().mean()
+        z = out[:, slice(*L["z"])]
+        cos = ((z / z.norm(dim=1, keepdim=True).clamp_min(1e-8)) * batch["Z"]).sum(dim=1)
+        pres = batch["present"]
+        same = (((out[:, slice(*L["touch_logit"])] >= 0).float() == batch["touch"]) | (pres == 0)).all(dim=1)
+        mask = torch.isfinite(batch["frac"])
+        tf_ = torch.sigmoid(out[:, slice(*L["touch_time_logit"])])
+        cl = out[:, slice(*L["count_logits"])].reshape(-1, 3, K + 1)
+        sl = torch.sigmoid(out[:, slice(*L["times_logit"])].reshape(-1, 3, K))
+        smask = torch.isfinite(batch["F"])
         metrics = {
             "z_angle_deg_median": float(torch.rad2deg(torch.arccos(cos.clamp(-1, 1))).median()),
             "T_rel_err_median": float((out[:, L["log_T_ratio"][0]] - batch["log_T_ratio"]).abs().median()),
-            "touch_set_acc": float(same),
+            "touch_set_acc": float(same.float().mean()),
             "touch_time_err_median": float((tf_ - batch["frac"])[mask].abs().median()) if bool(mask.any()) else math.nan,
             "u_first_acc": float(((out[:, slice(*L["u_first_logit"])] >= 0) == (batch["U"] > 0)).all(dim=1).float().mean()),
             "structure_acc": float((cl.argmax(dim=2) == batch["counts"]).all(dim=1).float().mean()),
             "switch_time_err_median": float((sl - batch["F"])[smask].abs().median()) if bool(smask.any()) else math.nan,
             "whole_structure_acc": float(_structure_right(out, batch, cfg).float().mean()),
         }
-    parts = {k: float(v.detach()) for k, v in (("z", l_z), ("log_T", l_T), ("touch", l_p), ("touch_times", l_t),
-                                                ("log_nu", l_nu), ("u_first", l_u), ("counts", l_c), ("times", l_s))}
     return total, parts, metrics
