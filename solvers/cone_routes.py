@@ -53,10 +53,8 @@ def network_predicted_tf(model, prob) -> Optional[float]:
     if it does not cover the problem or fails); ``model`` is the ensemble or the network."""
     net = getattr(model, "network", model)
     try:
-        if hasattr(net, "predict_canonical") and hasattr(net, "_coverage"):
-            # the selector's first head only (a guess would decode every head and make their guesses)
-            why, cf = net._coverage(prob)
-            tf = None if why else float(net.predict_canonical(cf.x, cf.T_ref)[1]) * cf.tau
+        if hasattr(net, "predicted_tf"):    # (a cone network: no guess made for it)
+            tf = net.predicted_tf(prob)
         else:
             g, why = net.guess_or_reason(prob)
             tf = None if why or g is None else float(g.tf)

@@ -8,6 +8,8 @@ from typing import Any, Callable, List, Optional
 
 import numpy as np
 
+from slew_env.checks import has_bool, has_text
+
 # status -> message (scipy style: a fixed table; ``message`` may add details)
 STATUS_SUCCESS = 0
 STATUS_NOT_CONVERGED = 1
@@ -135,7 +137,6 @@ class SlewSolution:
         must stop torquing itself."""
         if self._control is None:
             raise ValueError("control: this solution has no trajectory")
-        from slew_env.checks import has_bool, has_text
         try:
             raw = None if has_bool(t) or has_text(t) else np.asarray(t)
         except (TypeError, ValueError):

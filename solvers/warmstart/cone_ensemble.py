@@ -29,8 +29,6 @@ import numpy as np
 
 from slew_env import SlewProblem
 
-from ..guesses import Guess
-
 
 class ConeEnsembleWarmStart:
     """Neighbour solutions, then the network's guess (module docstring)."""
@@ -152,7 +150,7 @@ class _NetworkParts:
             if parts is None or k >= len(parts):
                 return None
             part = parts[k]
-            if callable(part) and not isinstance(part, Guess):
+            if callable(part):      # (a Guess is not callable)
                 part = parts[k] = part()
                 if part is not None:
                     part.candidates = []

@@ -154,6 +154,12 @@ class ConeWarmStartModel(WarmStartModel):
             raise ValueError(f"x: the network's final time is {T!r} (features outside the model's range?)")
         return z, T, p, tc, nu, uf, [tt[i, :counts[i]] for i in range(3)]
 
+    def predicted_tf(self, problem):
+        """The final time the selector's first head predicts for ``problem`` (problem units),
+        ``None`` where the model does not cover it; no guess is made."""
+        why, cf = self._coverage(SlewProblem.from_dict(problem))
+        return None if why else float(self.predict_canonical(cf.x, cf.T_ref)[1]) * cf.tau
+
     def guess_or_reason(self, problem, propagate=True):
         problem = SlewProblem.from_dict(problem)
         t0 = time.perf_counter()
