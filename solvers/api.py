@@ -104,7 +104,9 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     start challenges the default route's answer afterwards, replacing it only with a faster
     verified extremal: ``cone_challenge``, below; under a ``time_budget`` shorter than
     ``cone_routes.CONE_LEARNED_FIRST_BELOW``, 0.4 s, which the collocation route does not fit in, that
-    warm start goes first instead), ``"pointing-cones"`` (that warm start as the first
+    warm start goes first instead, within half the budget, and where it finds no extremal the
+    switching sequences of its nearest tabled solutions are optimised with the cones imposed,
+    ``cone_routes.cone_sequences_route``: a verified bang-bang slew, ``method="switch-time"``), ``"pointing-cones"`` (that warm start as the first
     guess: opt-in, faster but often a slower local extremal, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
     ``NearestNeighbourModel`` or anything with ``covers(problem)`` — ``None`` or ``True``: it
     covers the problem; a text saying why not, or ``False``: it does not — and ``guess(problem)``),
@@ -443,13 +445,31 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     later = None
     if challenge and float(options.get("time_budget", math.inf)) < cone_routes.CONE_LEARNED_FIRST_BELOW:
         # a budget shorter than the collocation route takes: the learned cone guess first (its
-        # verified extremal, where it finds one, is the answer; else the route runs in what is left)
-        warm, info, _ = warm_routes.try_warm_start(prob, method, "pointing-cones", options)
+        # verified extremal, where it finds one, is the answer), then the tabled solutions'
+        # sequences (a verified bang-bang slew); else the route runs in what is left
+        budget = float(options["time_budget"])
+        short = f"time budget {budget:.3g} s, under the collocation route's {cone_routes.CONE_LEARNED_FIRST_BELOW:g} s"
+        warm_opts = dict(options)
+        warm_opts.setdefault("warm_budget", min(cone_routes.CONE_WARM_BUDGET,
+                                                cone_routes.CONE_SHORT_LEARNED_SHARE * budget))
+        warm, info, _ = warm_routes.try_warm_start(prob, method, "pointing-cones", warm_opts)
         if warm is not None and warm.success:
-            warm.route = (f"time budget {float(options['time_budget']):.3g} s, under the collocation route's "
-                          f"{cone_routes.CONE_LEARNED_FIRST_BELOW:g} s: {warm.route}")
+            warm.route = f"{short}: {warm.route}"
             warm.wall_time = time.perf_counter() - t0
             return warm
+        left = budget - (time.perf_counter() - t0)
+        if info.get("covered") and left > cone_routes.CONE_SEQUENCE_MIN_LEFT:
+            seq, (s_nit, s_nfev) = cone_routes.cone_sequences_route(prob, dict(options, time_budget=left), info)
+            if seq is not None:
+                what = f"learned guess failed ({warm.message[:160]})" if warm is not None else "no learned guess"
+                seq.route = f"{short}: {what} → {seq.route}"
+                seq.nit += warm.nit if warm is not None else 0
+                seq.nfev += warm.nfev if warm is not None else 0
+                seq.warm_start = info
+                seq.wall_time = time.perf_counter() - t0
+                return seq
+            if warm is not None:
+                warm.nit, warm.nfev = warm.nit + s_nit, warm.nfev + s_nfev
     if guess is None and not challenge:
         # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
         # structure (milliseconds) first; its continuation candidates after collocation, unless

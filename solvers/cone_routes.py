@@ -24,6 +24,10 @@ CONE_WARM_BUDGET = 0.2
 # budget the route ends without an answer and the learned guess's verified extremal (62 % of
 # held-out problems, 25 ms median; a slower local extremal on 4 in 10 of those) is the best on offer
 CONE_LEARNED_FIRST_BELOW = 0.4
+# ... and there the learned candidates get at most this share of the budget, the tabled
+# solutions' sequences (``cone_sequences_route``) what is left after them: 91 % of the learned
+# answers on 1,000 held-out problems came within 0.1 s (runs/s39/eval_b_final)
+CONE_SHORT_LEARNED_SHARE = 0.5
 
 # auto's cone challenger (``cone_challenger``) runs where the route's answer is slower than this
 # multiple of the pointing-cones network's predicted tf ("gated", the default), always, or never.
@@ -290,6 +294,65 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
                   f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
                   f"{free.route}")
     return free
+
+
+# the pointing-cones table's sequences route (``cone_sequences_route``): the switching sequences
+# of this many nearest tabled solutions, optimised with the cones imposed, the fastest verified
+# kept. On the 133 of held-out problems 0-399 where the shipped warm start's candidates failed
+# (session 40, runs/s40/st_proto.py): 132 verified; against solve()'s answers (collocation route)
+# a median gap of 6.9e-5 with 4 sequences, 1.3e-4 with 3, 7.2e-4 with the first alone (17, 17
+# and 36 more than 1 % slower)
+CONE_SEQUENCES = 4
+CONE_SEQUENCE_BUDGET = 0.5      # s
+# a sequence whose boundary residual is still above this after its first round is dropped
+CONE_SEQUENCE_GIVE_UP = 1e-2
+# s: under a short time budget the sequences are not started with less than this left
+CONE_SEQUENCE_MIN_LEFT = 0.02
+
+
+def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CONE_SEQUENCE_BUDGET):
+    """``(answer or None, (nit, nfev))``: a verified bang-bang slew of a per-axis problem with
+    keep-out cones, without collocation, from the switching sequences of the
+    ``CONE_SEQUENCES`` nearest solutions of a pointing-cones table (``model``: a name for
+    ``warmstart.resolve``, or a model with a ``table``, or a table), their switch times and
+    ``tf`` optimised with the cones imposed (``switch_time_opt.bang_bang_from_sequences``),
+    within ``min(budget, options["time_budget"])``; the fastest verified one is kept. Exactly
+    feasible, its clearance certified on an RK4 replay, not an extremal (``method="switch-time"``,
+    ``exact`` false; ``tf_tol`` and ``costate0`` NaN: no collocation answer to compare with, and
+    with active cones the multipliers are not costates). ``info["neighbour_sequences"]``
+    records what happened. For ``auto`` under a time budget that collocation does not fit in,
+    after the learned candidates failed, and for ``slew evaluate``'s ``learned+table`` row."""
+    from . import warmstart
+    from .switch_time_cones import switch_time_cones_applies
+    from .switch_time_opt import bang_bang_from_sequences
+    from .warmstart.cone_nearest import ConeNearestNeighbourModel
+    t0 = time.perf_counter()
+    rec = info["neighbour_sequences"] = {"used": False}
+    if not (prob.cones and switch_time_cones_applies(prob)):
+        rec["skipped"] = "not a per-axis problem with keep-out cones"
+        return None, (0, 0)
+    try:
+        m = warmstart.resolve(model, prob) if isinstance(model, str) else model
+        table = m if isinstance(m, ConeNearestNeighbourModel) else getattr(m, "table", None)
+        if not isinstance(table, ConeNearestNeighbourModel) or table.covers(prob):
+            rec["skipped"] = "no pointing-cones table covers the problem"
+            return None, (0, 0)
+        g = table.guess(prob, k=CONE_SEQUENCES)
+    except (OSError, ValueError, IndexError) as e:     # a damaged file: no answer from it
+        rec["error"] = f"{type(e).__name__}: {e}"[:300]
+        return None, (0, 0)
+    budget = min(float(budget), float(options.get("time_budget", 20.0)))
+    sequences = [(c.u_first, c.switch_times, c.tf) for c in [g] + list(g.candidates)]
+    bang, _, (nit, nfev) = bang_bang_from_sequences(
+        prob, sequences, time_budget=budget - (time.perf_counter() - t0), tols=options.get("tols"),
+        source="the nearest tabled solutions", give_up_residual=CONE_SEQUENCE_GIVE_UP)
+    rec.update(sequences=len(sequences), time_s=time.perf_counter() - t0)
+    if bang is None:
+        return None, (nit, nfev)
+    rec.update(used=True, tried=bang.n_candidates)
+    bang.route = f"the {CONE_SEQUENCES} nearest tabled solutions' sequences → {bang.route}"
+    bang.wall_time = time.perf_counter() - t0
+    return bang, (0, 0)
 
 
 def bang_bang_cones(prob, col, options, left):

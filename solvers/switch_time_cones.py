@@ -66,12 +66,15 @@ def _pointing_rows(bvp):
 
 
 def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=1.0, max_iter=40,
-                                bvp=None) -> SwitchTimeOptResult:
+                                bvp=None, give_up_residual=math.inf) -> SwitchTimeOptResult:
     """The fastest bang-bang slew of ``problem`` (per-axis bound; full-attitude or pointing
     target; keep-out cones imposed) with the switching sequence ``(signs0, axes)``, from the
     nondimensional instants ``times`` and final time ``T`` (module docstring). A rate limit is
     not a constraint here (the caller checks it on the replay). ``z`` of the result is NaN:
-    with active cone constraints the multipliers are not an extremal's costates."""
+    with active cone constraints the multipliers are not an extremal's costates.
+    ``give_up_residual``: the rounds stop after one whose polished boundary residual is still
+    above it (a sequence that cannot reach the target, such as a far neighbour's: its further
+    rounds would only spend the next sequence's time)."""
     from scipy.optimize import minimize
     if not math.isinf(problem.torque_norm):
         raise ValueError("torque_norm: switch-time optimisation is for the per-axis bound")
@@ -157,6 +160,8 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
             feasible = resid < 1e-10 and worst >= accept
             if not resid < 1e-10:
                 why = f"boundary residual {resid:.2e} after the polish"
+                if not resid <= give_up_residual:
+                    break
             elif not feasible:
                 why = f"the path enters a cone by {-worst:.1e} rad between samples"
             gain = math.inf if best is None else best[0][n] - v[n]

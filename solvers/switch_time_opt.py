@@ -441,25 +441,43 @@ def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_
 
 
 def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
-                             max_iter=SLSQP_ITERATIONS, kkt_tol=None):
+                             max_iter=None, kkt_tol=None, give_up_residual=math.inf):
     """``(answer, kkt_guess, (nit, nfev))`` like ``bang_bang_answer``, from given switching
     sequences instead of a collocation answer: ``sequences`` holds ``(u_first, switch_times,
     tf)`` in the problem's units (per-axis lists of instants, for instance a near problem's
-    answer). Each is optimised in turn (``max_iter`` SLSQP iterations) and verified, until the
-    time is spent; the fastest verified answer is kept. ``(nit, nfev)`` counts the work on all
-    of them. There is no collocation answer to compare with, so ``tf_tol`` is ``tf_rel_tol · tf``
-    (an estimate measured by the caller on held-out problems) or NaN. ``costate0`` is the KKT
-    multipliers' costates, an estimate where the iterate is not a KKT point (the dense costates
-    are then NaN). The KKT guess is given only when the answer is a KKT point of its sequence
-    (residual at most ``KKT_TOL``): after a few iterations on a singular problem it is not, and
-    the exact solver from it would fail, at tens of milliseconds; ``kkt_tol`` (default ``KKT_TOL``)
-    sets that residual (``math.inf``: the guess always, for a caller that expects a bang-bang
-    optimum, where an iterate near it leads the exact solver there). ``(None, None, (nit, nfev))``
-    when nothing is verified or ``switch_time_applies`` is false."""
+    answer). Each is optimised in turn (``max_iter`` SLSQP iterations, default that of the
+    problem's optimiser) and verified, until the time is spent; the fastest verified answer is
+    kept. ``(nit, nfev)`` counts the work on all of them. There is no collocation answer to
+    compare with, so ``tf_tol`` is ``tf_rel_tol · tf`` (an estimate measured by the caller on
+    held-out problems) or NaN. ``costate0`` is the KKT multipliers' costates, an estimate where
+    the iterate is not a KKT point (the dense costates are then NaN). The KKT guess is given only
+    when the answer is a KKT point of its sequence (residual at most ``KKT_TOL``): after a few
+    iterations on a singular problem it is not, and the exact solver from it would fail, at tens
+    of milliseconds; ``kkt_tol`` (default ``KKT_TOL``) sets that residual (``math.inf``: the guess
+    always, for a caller that expects a bang-bang optimum, where an iterate near it leads the
+    exact solver there). ``(None, None, (nit, nfev))`` when nothing is verified or neither
+    ``switch_time_applies`` nor ``switch_time_cones.switch_time_cones_applies`` holds.
+
+    Keep-out cones and pointing targets: the sequences are optimised with the cones imposed
+    (``switch_time_cones.optimise_switch_times_cones``, which stops a sequence after a round
+    whose boundary residual stays above ``give_up_residual``), and the clearance is certified
+    on the replay; such answers have no KKT guess and report ``costate0`` NaN."""
+    from .switch_time_cones import SLSQP_ITERATIONS as CONE_ITERATIONS
+    from .switch_time_cones import optimise_switch_times_cones, switch_time_cones_applies
     t0 = time.perf_counter()
-    if not switch_time_applies(problem):
+    cones = switch_time_cones_applies(problem)
+    if not (cones or switch_time_applies(problem)):
         return None, None, (0, 0)
-    bvp = AttitudeBVP(problem)
+    if cones:
+        bvp = AttitudeBVP(problem.replace(cones=()))
+        max_iter = CONE_ITERATIONS if max_iter is None else max_iter
+
+        def optimise(*args, **kw):
+            return optimise_switch_times_cones(*args, give_up_residual=give_up_residual, **kw)
+    else:
+        bvp = AttitudeBVP(problem)
+        max_iter = SLSQP_ITERATIONS if max_iter is None else max_iter
+        optimise = optimise_switch_times
     tau = bvp.tau
     best = None
     tried = nit = nfev = 0
@@ -482,14 +500,15 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
         axes = np.concatenate([axes, np.array(extra_axes, dtype=np.int64)])
         times = np.concatenate([times, extra_times])
         o = np.argsort(times, kind="stable")
-        r = optimise_switch_times(problem, signs0, axes[o], times[o], tf / tau, time_budget=max(left, 0.01),
-                                  max_iter=max_iter, bvp=bvp)
+        r = optimise(problem, signs0, axes[o], times[o], tf / tau, time_budget=max(left, 0.01), max_iter=max_iter,
+                     bvp=bvp)
         nit += r.nit
         nfev += r.nfev
         if not r.success or (best is not None and not r.T < best[0].T):
             continue
         T = r.T * tau
-        comparison = f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
+        comparison = (f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
+                      if tf_rel_tol == tf_rel_tol else "not compared with collocation (tf_tol not estimated)")
         answer, kkt_guess = _answer(problem, bvp, r, tols, f"the sequence of {source} {tried}", "", comparison,
                                     lambda att, T=T: max(T * tf_rel_tol, T * 10.0 * att) if tf_rel_tol == tf_rel_tol
                                     else math.nan, None, t0)

@@ -1,6 +1,8 @@
 """``auto`` with keep-out cones under a time budget shorter than its collocation route takes
-(``cone_routes.CONE_LEARNED_FIRST_BELOW``): the shipped pointing-cones warm start first, then the
-route in what is left (before, the route ran out of time and only the fallback answered)."""
+(``cone_routes.CONE_LEARNED_FIRST_BELOW``): the shipped pointing-cones warm start first (at most
+``CONE_SHORT_LEARNED_SHARE`` of the budget), then the switching sequences of its nearest tabled
+solutions (``cone_routes.cone_sequences_route``), then the route in what is left (before, the
+route ran out of time and only the fallback answered)."""
 import math
 
 import numpy as np
@@ -25,19 +27,30 @@ def calls(monkeypatch):
     seen = []
 
     def warm(prob, method, warm_start, options, split=False):
-        seen.append(("warm", warm_start, options.get("time_budget")))
+        seen.append(("warm", warm_start, options.get("time_budget"), options.get("warm_budget")))
         ok = SlewSolution(True, 0, "stub learned answer", 3, 9, 0.0, method="indirect", problem=prob,
                           route="learned stub", tf=2.5)
-        return (ok if seen[-1][1] == "pointing-cones" and calls_ok["warm"] else None), \
+        failed = SlewSolution(False, 1, "stub learned failure", 4, 40, 0.0, method="indirect", problem=prob,
+                              route="learned stub")
+        return (ok if seen[-1][1] == "pointing-cones" and calls_ok["warm"] else failed), \
             {"model": "stub", "covered": True, "succeeded": calls_ok["warm"]}, None
+
+    def sequences(prob, options, info, **kw):
+        seen.append(("sequences", options.get("time_budget")))
+        info["neighbour_sequences"] = {"used": calls_ok["sequences"]}
+        if not calls_ok["sequences"]:
+            return None, (5, 50)
+        return SlewSolution(True, 0, "stub sequences answer", 7, 70, 0.0, method="switch-time", problem=prob,
+                            route="sequences stub", tf=2.6), (0, 0)
 
     def route(prob, guess, col_opts, options, **kw):
         seen.append(("route", options.get("time_budget")))
         return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "Time budget exhausted.", 0, 0, 0.0,
                             method="collocation", problem=prob, route="route stub")
 
-    calls_ok = {"warm": True}
+    calls_ok = {"warm": True, "sequences": False}
     monkeypatch.setattr(warm_routes, "try_warm_start", warm)
+    monkeypatch.setattr(cone_routes, "cone_sequences_route", sequences)
     monkeypatch.setattr(auto_route, "solve_auto", route)
     monkeypatch.setattr(cone_routes, "cone_challenger", lambda prob, sol, *a, **k: sol)
     return seen, calls_ok
@@ -47,19 +60,41 @@ def test_a_short_budget_tries_the_learned_cone_guess_first(calls):
     seen, _ = calls
     sol = solvers.solve(_problem(), time_budget=0.2)
     assert sol.success and sol.message == "stub learned answer"
-    assert seen == [("warm", "pointing-cones", 0.2)]        # the route never ran
+    # the learned candidates get half of the budget; the route never ran
+    assert seen == [("warm", "pointing-cones", 0.2, 0.1)]
     assert "under the collocation route's 0.4 s" in sol.route
 
 
-def test_where_the_learned_guess_fails_the_route_gets_what_is_left(calls):
+def test_where_the_learned_guess_fails_the_sequences_then_the_route_get_what_is_left(calls):
     seen, ok = calls
     ok["warm"] = False
     sol = solvers.solve(_problem(), time_budget=0.3, fallback="eigenaxis")
-    assert [c[0] for c in seen] == ["warm", "route"]
-    # the fallback kept 2 × 25 ms (a one-waypoint slew round the cone); the route, the rest
-    assert seen[0][2] == pytest.approx(0.25, rel=1e-9) and seen[1][1] < 0.25
+    assert [c[0] for c in seen] == ["warm", "sequences", "route"]
+    # the fallback kept 2 × 25 ms (a one-waypoint slew round the cone); the learned candidates half
+    # of the rest, the sequences what is left after them, the route what is left after those
+    assert seen[0][2] == pytest.approx(0.25, rel=1e-9) and seen[0][3] == pytest.approx(0.125, rel=1e-9)
+    assert 0.2 < seen[1][1] < 0.25 and seen[2][1] <= seen[1][1]
     assert sol.success and sol.method == "eigenaxis" and "waypoint" in sol.route
     assert sol.warm_start["model"] == "stub" and not sol.warm_start["succeeded"]
+    assert sol.warm_start["neighbour_sequences"] == {"used": False}
+
+
+def test_a_verified_sequences_answer_ends_the_solve(calls):
+    seen, ok = calls
+    ok.update(warm=False, sequences=True)
+    sol = solvers.solve(_problem(), time_budget=0.3, fallback="eigenaxis")
+    assert [c[0] for c in seen] == ["warm", "sequences"]        # no route
+    assert sol.success and sol.method == "switch-time" and sol.message == "stub sequences answer"
+    assert sol.route.startswith("time budget 0.25 s, under the collocation route's 0.4 s: learned guess failed "
+                                "(stub learned failure) → sequences stub")
+    assert (sol.nit, sol.nfev) == (7 + 4, 70 + 40)      # the learned candidates' work is counted
+    assert sol.warm_start["neighbour_sequences"] == {"used": True}
+
+
+def test_a_users_warm_budget_holds_under_a_short_budget(calls):
+    seen, ok = calls
+    solvers.solve(_problem(), time_budget=0.3, warm_budget=0.05)
+    assert seen[0][3] == 0.05
 
 
 def test_a_budget_the_route_fits_in_keeps_the_route_first(calls):

@@ -16,7 +16,11 @@ verified extremal, the Newton iterations, the wall time and the final time:
   sequences of the nearest tabled solutions, optimised, then the exact solver from their KKT
   costates (``solvers.warm_routes.neighbour_sequences_route``; ``solve()`` runs the collocation route
   as well when that gives no extremal). (``solve()`` consults the table before the model's
-  continuation candidate, so its times differ a little.);
+  continuation candidate, so its times differ a little.) For the pointing-cones family (a
+  model with a table of solutions: the shipped one), where the model's candidates fail, the
+  switching sequences of its 4 nearest tabled solutions, optimised with the cones imposed
+  (``solvers.cone_routes.cone_sequences_route``, within 0.5 s): verified bang-bang slews, not
+  extremals, as ``solve()`` gives under a time budget below 0.4 s;
 * ``nearest-neighbour`` — the solutions of the k nearest problems of the training data
   (the data-driven baseline), built from the same dataset files;
 * ``eigenaxis`` — the analytic eigenaxis costates with the smoothing continuation;
@@ -137,7 +141,10 @@ def _run_guesses(family, seed, index, guesses, budget, warm_budget):
 
 def _with_table(prob, out):
     """The ``learned+table`` record: the ``learned`` record of this problem (run just before)
-    if it converged, else the singular table's route after it, its time added."""
+    if it converged, else the table's route after it, its time added: the singular table's
+    (full-attitude), or the sequences of the model's nearest tabled solutions with the cones
+    imposed (pointing-cones, ``solvers.cone_routes.cone_sequences_route``)."""
+    from solvers.cone_routes import cone_sequences_route
     from solvers.warm_routes import neighbour_sequences_route, singular_table_route, table_votes_bang_bang
     learned = next(r for r in out if r["guess"] == "learned")
     rec = dict(learned, guess="learned+table")
@@ -145,10 +152,13 @@ def _with_table(prob, out):
         return rec
     t0 = time.perf_counter()
     info = {}
-    sol, (nit, _) = singular_table_route(prob, {}, info, exact_check=False)   # the table's answers: no collocation
-    if sol is None and table_votes_bang_bang(info):
-        sol, (nit_nb, _) = neighbour_sequences_route(prob, {}, info)   # the neighbours' sequences
-        nit += nit_nb
+    if prob.cones:
+        sol, (nit, _) = cone_sequences_route(prob, {}, info, model=_W["model"])
+    else:
+        sol, (nit, _) = singular_table_route(prob, {}, info, exact_check=False)   # the table's answers: no collocation
+        if sol is None and table_votes_bang_bang(info):
+            sol, (nit_nb, _) = neighbour_sequences_route(prob, {}, info)   # the neighbours' sequences
+            nit += nit_nb
     rec["wall_time_s"] = learned["wall_time_s"] + time.perf_counter() - t0
     if sol is not None:
         rec.update(success=True, exact=bool(sol.exact), tf=float(sol.tf), nit=learned["nit"] + int(sol.nit),
@@ -267,9 +277,13 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
     t_inference = inference_time(model, family, seed)   # before the pool: a quiet process
     t_network = network_time(model, family, seed)
     jobs = []
-    # the singular table goes with the shipped full-attitude model
-    table = (family == "full-attitude" and model_path in (None, "", "default")
-             and warmstart.default_singular_table() is not None)
+    # the singular table goes with the shipped full-attitude model; a pointing-cones model's own
+    # table of solutions gives the sequences (the shipped one, or an ensemble's file)
+    from solvers.warmstart.cone_ensemble import ConeEnsembleWarmStart
+    from solvers.warmstart.cone_nearest import ConeNearestNeighbourModel
+    table = ((family == "full-attitude" and model_path in (None, "", "default")
+              and warmstart.default_singular_table() is not None)
+             or (family == "pointing-cones" and isinstance(model, (ConeEnsembleWarmStart, ConeNearestNeighbourModel))))
     for i in range(n):
         g = ["learned"] + (["learned+table"] if table else []) + (["nearest-neighbour"] if nn_path else [])
         if i < baseline_n:
