@@ -9,6 +9,8 @@ import math
 import time
 from typing import Optional
 
+import numpy as np
+
 from .solution import STATUS_NOT_CONVERGED, STATUS_VERIFICATION_FAILED, SlewSolution
 from .verify import make_check
 from . import auto_route, multistart, stage_budget, warm_routes
@@ -299,15 +301,22 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
 # the pointing-cones table's sequences route (``cone_sequences_route``): the switching sequences
 # of this many nearest tabled solutions, optimised with the cones imposed, the fastest verified
 # kept. On the 133 of held-out problems 0-399 where the shipped warm start's candidates failed
-# (session 40, runs/s40/st_proto.py): 132 verified; against solve()'s answers (collocation route)
-# a median gap of 6.9e-5 with 4 sequences, 1.3e-4 with 3, 7.2e-4 with the first alone (17, 17
-# and 36 more than 1 % slower)
+# (session 40, runs/s40/st_proto.py, no budget): 133 verified; against solve()'s answers
+# (collocation route) a median gap of 6.9e-5 with 4 sequences, 1.3e-4 with 3, 7.2e-4 with the
+# first alone (17, 17 and 36 more than 1 % slower). Within 0.5 s on a loaded machine, 130
+# (runs/s40/route_eval.py)
 CONE_SEQUENCES = 4
 CONE_SEQUENCE_BUDGET = 0.5      # s
 # a sequence whose boundary residual is still above this after its first round is dropped
 CONE_SEQUENCE_GIVE_UP = 1e-2
 # s: under a short time budget the sequences are not started with less than this left
 CONE_SEQUENCE_MIN_LEFT = 0.02
+# s: the exact extremal at the sequences' answer (``exact_near_bang_bang``), beyond their budget.
+# On the 133 problems above (a loaded machine, runs/s40/route_eval.py): 0.06 s gave 37 exact
+# extremals (27 at solve()'s answer), 0.2 s 41 (31); 85 of the 133 have an exact optimum
+CONE_SEQUENCE_EXACT_BUDGET = 0.15
+# a touch multiplier where no neighbour's touch of that cone gives one
+TOUCH_NU_GUESS = 0.05
 
 
 def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CONE_SEQUENCE_BUDGET):
@@ -316,11 +325,14 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
     ``CONE_SEQUENCES`` nearest solutions of a pointing-cones table (``model``: a name for
     ``warmstart.resolve``, or a model with a ``table``, or a table), their switch times and
     ``tf`` optimised with the cones imposed (``switch_time_opt.bang_bang_from_sequences``),
-    within ``min(budget, options["time_budget"])``; the fastest verified one is kept. Exactly
+    within ``min(budget, options["time_budget"])``; the fastest verified one is kept: exactly
     feasible, its clearance certified on an RK4 replay, not an extremal (``method="switch-time"``,
-    ``exact`` false; ``tf_tol`` and ``costate0`` NaN: no collocation answer to compare with, and
-    with active cones the multipliers are not costates). ``info["neighbour_sequences"]``
-    records what happened. For ``auto`` under a time budget that collocation does not fit in,
+    ``exact`` false; ``tf_tol`` NaN, no collocation answer to compare with; ``costate0`` its KKT
+    costates where its path keeps clear of the cones, else NaN: with active cones the
+    multipliers are not costates). Then, within ``CONE_SEQUENCE_EXACT_BUDGET`` more (never past
+    ``options["time_budget"]``), the exact extremal at that answer (``exact_near_bang_bang``),
+    which replaces it where found and not slower. ``info["neighbour_sequences"]`` records what
+    happened. For ``auto`` under a time budget that collocation does not fit in,
     after the learned candidates failed, and for ``slew evaluate``'s ``learned+table`` row."""
     from . import warmstart
     from .switch_time_cones import switch_time_cones_applies
@@ -342,17 +354,102 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
         rec["error"] = f"{type(e).__name__}: {e}"[:300]
         return None, (0, 0)
     budget = min(float(budget), float(options.get("time_budget", 20.0)))
-    sequences = [(c.u_first, c.switch_times, c.tf) for c in [g] + list(g.candidates)]
-    bang, _, (nit, nfev) = bang_bang_from_sequences(
-        prob, sequences, time_budget=budget - (time.perf_counter() - t0), tols=options.get("tols"),
-        source="the nearest tabled solutions", give_up_residual=CONE_SEQUENCE_GIVE_UP)
-    rec.update(sequences=len(sequences), time_s=time.perf_counter() - t0)
-    if bang is None:
+    neighbours = [g] + list(g.candidates)
+    best = None                 # (answer, its KKT guess, its neighbour)
+    nit = nfev = tried = 0
+    for nb in neighbours:
+        left = budget - (time.perf_counter() - t0)
+        if left <= 0.0 and tried:
+            break
+        tried += 1
+        bang, kkt_guess, (n_it, n_fev) = bang_bang_from_sequences(
+            prob, [(nb.u_first, nb.switch_times, nb.tf)], time_budget=max(left, 0.0), tols=options.get("tols"),
+            source=f"the {nb.source} tabled solution", give_up_residual=CONE_SEQUENCE_GIVE_UP, kkt_tol=math.inf)
+        nit, nfev = nit + n_it, nfev + n_fev
+        if bang is not None and (best is None or bang.tf < best[0].tf):
+            best = (bang, kkt_guess, nb)
+    rec.update(sequences=len(neighbours), tried=tried)
+    if best is None:
+        rec["time_s"] = time.perf_counter() - t0
         return None, (nit, nfev)
-    rec.update(used=True, tried=bang.n_candidates)
-    bang.route = f"the {CONE_SEQUENCES} nearest tabled solutions' sequences → {bang.route}"
-    bang.wall_time = time.perf_counter() - t0
-    return bang, (0, 0)
+    bang, kkt_guess, nb = best
+    bang.nit, bang.nfev, bang.n_candidates = nit, nfev, tried
+    prefix = f"the {CONE_SEQUENCES} nearest tabled solutions' sequences ({tried} tried)"
+    # (beyond the sequences' own budget, never beyond the solve's)
+    left = min(budget + CONE_SEQUENCE_EXACT_BUDGET, float(options.get("time_budget", math.inf))) - (
+        time.perf_counter() - t0)
+    ex = exact_near_bang_bang(prob, bang, kkt_guess, nb, options, min(CONE_SEQUENCE_EXACT_BUDGET, left))
+    rec["exact"] = ex is not None
+    if ex is not None:
+        ex.nit, ex.nfev = ex.nit + nit, ex.nfev + nfev
+        ex.n_candidates = tried + 1
+        ex.route = f"{prefix} → {bang.route} → {ex.route}"
+        answer = ex
+    else:
+        bang.route = f"{prefix} → {bang.route}"
+        answer = bang
+    rec.update(used=True, time_s=time.perf_counter() - t0)
+    answer.wall_time = time.perf_counter() - t0
+    return answer, (0, 0)
+
+
+def exact_near_bang_bang(prob, bang, kkt_guess, neighbour, options, budget):
+    """The exact extremal at a verified bang-bang answer ``bang`` of a cone problem (its switch
+    instants and ``tf``), or ``None``: where its path keeps clear of the cones, the extremal of
+    the problem without them from its KKT costates (``kkt_guess``), accepted only if its path
+    clears every cone (certified); where it meets cones (margin minima below
+    ``TOUCH_MARGIN_SEQUENCE`` on an RK4 replay), the touch-point extremal
+    (``cone_touch.solve_touch_guess``) from those touches, the answer's instants and the
+    ``neighbour``'s costates and touch multipliers. Kept only if not slower than ``bang`` (by
+    1e-6: another extremal is a slower local optimum)."""
+    from .cone_touch import solve_touch_guess
+    from .guesses import Guess
+    t0 = time.perf_counter()
+    if budget <= 0.0:
+        return None
+    if kkt_guess is not None:
+        ex = multistart.guess_alone(prob.replace(cones=[]), kkt_guess, options, budget, with_candidates=False)
+        ex.problem = prob
+        if not (ex.success and certify_clear(prob, ex)):
+            ex = None
+    else:
+        touches = touches_on_path(prob, bang, neighbour.touches)
+        ex = None
+        if touches:
+            g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
+                      source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
+            g.touches = touches
+            ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=budget - (time.perf_counter() - t0),
+                                   smoothing=False)
+            ex = ex if ex.success else None
+    if ex is None or ex.tf > bang.tf * (1.0 + 1e-6):
+        return None
+    return ex
+
+
+# rad: where the margin of a bang-bang answer's path has a local minimum below this, it touches a
+# cone there (its samples keep 5e-7 rad: switch_time_cones.SAMPLE_MARGIN)
+TOUCH_MARGIN_SEQUENCE = 1e-5
+# the RK4 steps over tf of the replay that finds them
+TOUCH_REPLAY_STEPS = 4000
+
+
+def touches_on_path(prob, sol, known=None) -> list:
+    """``[(cone, instant, ν)]``: the local minima of each cone's margin below
+    ``TOUCH_MARGIN_SEQUENCE`` on an RK4 replay of a bang-bang answer ``sol``; ``ν`` that of the
+    first touch of the same cone in ``known`` (a neighbour's touches), else ``TOUCH_NU_GUESS``."""
+    from .clearance import cone_margins
+    from .verify import replay_path
+    t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, sol.switch_times, sol.u_first, sol.tf,
+                       TOUCH_REPLAY_STEPS)
+    m = cone_margins(prob, x[:, 0:4])
+    out = []
+    for k in range(m.shape[1]):
+        mk = m[:, k]
+        idx = np.flatnonzero((mk[1:-1] <= mk[:-2]) & (mk[1:-1] <= mk[2:]) & (mk[1:-1] < TOUCH_MARGIN_SEQUENCE)) + 1
+        nus = [nu for c, _, nu in (known or []) if c == k]
+        out += [(k, float(t[i]), float(nus[0]) if nus else TOUCH_NU_GUESS) for i in idx]
+    return sorted(out, key=lambda c: c[1])
 
 
 def bang_bang_cones(prob, col, options, left):

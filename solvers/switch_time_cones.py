@@ -42,7 +42,10 @@ import numpy as np
 from .attitude_bvp import AttitudeBVP, step_budget
 from .core.attitude_flow import MODE_BANG
 from .core.cone_penalty import cone_matrix, sampled_margins
+from .clearance import cone_margins
+from .core.control_replay import replay_bang_bang_path
 from .core.switch_sequence import sequence_samples
+from .switch_time import propagate_sequence
 from .switch_time_opt import (SwitchTimeOptResult, _start_state, checked_sequence, evaluated_sequence,
                               order_constraints)
 
@@ -70,8 +73,10 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
     """The fastest bang-bang slew of ``problem`` (per-axis bound; full-attitude or pointing
     target; keep-out cones imposed) with the switching sequence ``(signs0, axes)``, from the
     nondimensional instants ``times`` and final time ``T`` (module docstring). A rate limit is
-    not a constraint here (the caller checks it on the replay). ``z`` of the result is NaN:
-    with active cone constraints the multipliers are not an extremal's costates.
+    not a constraint here (the caller checks it on the replay). ``z`` of the result: the KKT
+    costates of the boundary rows where the answer's path keeps clear of every cone
+    (``_costates_where_clear``), else NaN (with active cone constraints the multipliers are not
+    an extremal's costates).
     ``give_up_residual``: the rounds stop after one whose polished boundary residual is still
     above it (a sequence that cannot reach the target, such as a far neighbour's: its further
     rounds would only spend the next sequence's time)."""
@@ -185,9 +190,41 @@ def optimise_switch_times_cones(problem, signs0, axes, times, T, *, time_budget=
                                    math.inf, stats["nit"], stats["nfev"])
     v, note, converged, n_samples, resid = best
     note += f"; {n_samples} samples, {rnd} round(s)"
+    z, kkt = _costates_where_clear(bvp, problem, v, axes, signs0, y0, A, rows, stats)
     times_kept, axes_kept, signs0 = evaluated_sequence(v, axes, signs0)
     return SwitchTimeOptResult(True, note, float(v[n]), times_kept, axes_kept, signs0, resid, stats["nit"],
-                               stats["nfev"], np.full(6, np.nan), math.nan, converged)
+                               stats["nfev"], z, kkt, converged)
+
+
+# rad: a path whose clearance stays above this (RK4 replay, ``CLEAR_STEPS`` steps) leaves every
+# cone constraint inactive, and the KKT conditions of the boundary rows alone give its costates
+CLEAR_MARGIN = 1e-5
+CLEAR_STEPS = 4000
+
+
+def _costates_where_clear(bvp, problem, v, axes, signs0, y0, A, rows, stats):
+    """``(z, kkt residual)`` of the answer ``v`` where no cone constraint is active (its path, on
+    an RK4 replay, at least ``CLEAR_MARGIN`` from every cone): the boundary rows' KKT costates
+    (``switch_time_opt.kkt_costates``), which on a stationary answer are its extremal's, the
+    seed of the exact solver; else ``(NaN, NaN)`` (with an active cone the multipliers of the
+    sampled constraints make the costates jump: no such costates are formed)."""
+    from .switch_time_opt import kkt_costates
+    nan = (np.full(6, np.nan), math.nan)
+    n = axes.shape[0]
+    T = float(v[n])
+    if problem.cones:
+        ev = np.clip(v[:n], 0.0, T)
+        o = np.argsort(ev, kind="stable")
+        _, X = replay_bang_bang_path(np.ascontiguousarray(y0[:7]), bvp.umax, bvp.J, ev[o], axes[o], signs0, T,
+                                     float(CLEAR_STEPS))
+        if not (np.all(np.isfinite(X)) and float(cone_margins(problem, X[:, 0:4]).min()) > CLEAR_MARGIN):
+            return nan
+    out = propagate_sequence(bvp, v[:n], axes, signs0, T, y0, True)
+    if out is None:
+        return nan
+    _, _, Jr, D7, M, nfev = out
+    stats["nfev"] += nfev
+    return kkt_costates(bvp, v, A, Jr[rows], D7[rows], M)
 
 
 def keep_off(fracs, end_margins):

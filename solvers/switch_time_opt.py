@@ -148,8 +148,24 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     if fail is None and not (resid < 1e-10):
         fail = f"boundary residual {resid:.2e} after the polish"
     times_kept, axes_kept, signs0 = evaluated_sequence(v, axes, signs0)
-    # KKT: e_T = J_rᵀ ν + A_actᵀ μ, by least squares, with the active inequalities (zero-width
-    # pulses, instants at 0 or T); its residual measures stationarity
+    z, kkt = kkt_costates(bvp, v, A, Jr, D7, M)
+    ok = fail is None
+    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), times_kept, axes_kept, signs0,
+                               resid, stats["nit"], stats["nfev"], z, kkt, converged)
+
+
+def kkt_costates(bvp, v, A, Jr, D7, M):
+    """``(z, kkt residual)`` of a switch-time iterate ``v = [times, T]`` whose state constraints
+    are the boundary conditions alone (no active cone): ``J_r`` the residual's Jacobian in ``v``,
+    ``D7 = ∂r/∂x(T)``, ``M`` the state transition over ``[0, T]`` (``propagate_sequence``; rows of a
+    pointing target's roll transversality left out by the caller), ``A`` the order constraints.
+    KKT: ``e_T = J_rᵀ ν + A_actᵀ μ`` by least squares, with the active inequalities (zero-width
+    pulses, instants at 0 or T); its residual measures stationarity. ``z`` (unit norm, NaN if
+    zero) is the solver's parameters ``[μ, λω(0)]`` of the costates ``λ(tf) = -D7ᵀ ν`` carried
+    back to ``t = 0``: on a bang-bang optimum, its extremal's."""
+    n = v.shape[0] - 1
+    e_T = np.zeros(n + 1)
+    e_T[n] = 1.0
     act = A[np.abs(A @ v) <= 1e-10 * max(1.0, float(v[n]))] if A.shape[0] else np.zeros((0, n + 1))
     K = np.hstack([Jr.T, act.T])
     mult, *_ = np.linalg.lstsq(K, e_T, rcond=None)
@@ -162,10 +178,7 @@ def optimise_switch_times(problem, signs0, axes, times, T, *, time_budget=1.0, m
     mu = _quat_left_conj(bvp.q0, lam_0[0:4])
     z = np.concatenate([mu, lam_0[4:7]])
     nz = float(np.linalg.norm(z))
-    z = z / nz if nz > 0 else np.full(6, np.nan)
-    ok = fail is None
-    return SwitchTimeOptResult(ok, note if ok else fail, float(v[n]), times_kept, axes_kept, signs0,
-                               resid, stats["nit"], stats["nfev"], z, kkt, converged)
+    return (z / nz if nz > 0 else np.full(6, np.nan)), kkt
 
 
 def checked_sequence(signs0, axes, times, T):
