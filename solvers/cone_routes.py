@@ -27,9 +27,18 @@ CONE_WARM_BUDGET = 0.2
 # held-out problems, 25 ms median; a slower local extremal on 4 in 10 of those) is the best on offer
 CONE_LEARNED_FIRST_BELOW = 0.4
 # ... and there the learned candidates get at most this share of the budget, the tabled
-# solutions' sequences (``cone_sequences_route``) what is left after them: 91 % of the learned
-# answers on 1,000 held-out problems came within 0.1 s (runs/s39/eval_b_final)
+# solutions' sequences (``cone_sequences_route``) what is left after them, where that share is at
+# least ``CONE_SEQUENCE_MIN_SHARE_S`` (a sequence's optimisation takes 40-150 ms; with less, the
+# learned candidates get it all): 91 % of the learned answers on 1,000 held-out problems came
+# within 0.1 s (runs/s39/eval_b_final)
 CONE_SHORT_LEARNED_SHARE = 0.5
+CONE_SEQUENCE_MIN_SHARE_S = 0.06
+
+
+def short_learned_budget(budget) -> float:
+    """The learned candidates' part of a short time ``budget`` (``CONE_SHORT_LEARNED_SHARE``)."""
+    rest = (1.0 - CONE_SHORT_LEARNED_SHARE) * float(budget)
+    return float(budget) - rest if rest >= CONE_SEQUENCE_MIN_SHARE_S else float(budget)
 
 # auto's cone challenger (``cone_challenger``) runs where the route's answer is slower than this
 # multiple of the pointing-cones network's predicted tf ("gated", the default), always, or never.

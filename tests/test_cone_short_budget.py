@@ -104,3 +104,17 @@ def test_a_budget_the_route_fits_in_keeps_the_route_first(calls):
     seen.clear()
     solvers.solve(_problem())                  # no budget: the default route, as before
     assert seen[0][0] == "route"
+
+
+def test_a_budget_too_short_for_a_sequence_goes_to_the_learned_candidates_whole(calls):
+    """Half of a 0.1 s budget (less the fallback's 25 ms a leg) would leave the sequences less than
+    ``CONE_SEQUENCE_MIN_SHARE_S``, less than one optimisation takes: the learned candidates may use
+    it all, as before the sequences existed (the sequences get what they leave: here the stub's
+    failure at once leaves nearly all of it)."""
+    seen, ok = calls
+    ok["warm"] = False
+    solvers.solve(_problem(), time_budget=0.1, fallback="eigenaxis")
+    assert seen[0][0] == "warm" and seen[0][3] == pytest.approx(0.05, rel=1e-9) == seen[0][2]
+    assert seen[1][0] == "sequences" and seen[1][1] <= 0.05
+    assert cone_routes.short_learned_budget(0.25) == pytest.approx(0.125)
+    assert cone_routes.short_learned_budget(0.1) == 0.1
