@@ -106,7 +106,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     ``cone_routes.CONE_LEARNED_FIRST_BELOW``, 0.4 s, which the collocation route does not fit in, that
     warm start goes first instead, within half the budget, and where it finds no extremal the
     switching sequences of its nearest tabled solutions are optimised with the cones imposed,
-    ``cone_routes.cone_sequences_route``: a verified bang-bang slew, ``method="switch-time"``), ``"pointing-cones"`` (that warm start as the first
+    ``cone_routes.cone_sequences_route``: a verified bang-bang slew, ``method="switch-time"``, or
+    the exact extremal at it where one is found), ``"pointing-cones"`` (that warm start as the first
     guess: opt-in, faster but often a slower local extremal, see ``docs/WARMSTART.md``), a model object (``solvers.warmstart.WarmStartModel``,
     ``NearestNeighbourModel`` or anything with ``covers(problem)`` — ``None`` or ``True``: it
     covers the problem; a text saying why not, or ``False``: it does not — and ``guess(problem)``),
@@ -433,6 +434,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     t0 = time.perf_counter()
     warm = None
     info = {}
+    seq_failed = None       # (nit, nfev, record) of the short budget's sequences, where they found nothing
     # auto with cones and the shipped models: the default route answers, and the shipped
     # pointing-cones warm start challenges that answer afterwards (``cone_routes.cone_challenger``)
     challenge = (method == "auto" and bool(prob.cones) and guess is None and isinstance(warm_start, str)
@@ -446,7 +448,8 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
     if challenge and float(options.get("time_budget", math.inf)) < cone_routes.CONE_LEARNED_FIRST_BELOW:
         # a budget shorter than the collocation route takes: the learned cone guess first (its
         # verified extremal, where it finds one, is the answer), then the tabled solutions'
-        # sequences (a verified bang-bang slew); else the route runs in what is left
+        # sequences (a verified bang-bang slew, or the exact extremal at it); else the route runs
+        # in what is left
         budget = float(options["time_budget"])
         short = f"time budget {budget:.3g} s, under the collocation route's {cone_routes.CONE_LEARNED_FIRST_BELOW:g} s"
         warm_opts = dict(options)
@@ -467,8 +470,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
                 seq.warm_start = info
                 seq.wall_time = time.perf_counter() - t0
                 return seq
-            if warm is not None:
-                warm.nit, warm.nfev = warm.nit + s_nit, warm.nfev + s_nfev
+            seq_failed = (s_nit, s_nfev, info["neighbour_sequences"])
     if guess is None and not challenge:
         # auto on a full-attitude per-axis problem: the learned candidates that carry a switching
         # structure (milliseconds) first; its continuation candidates after collocation, unless
@@ -536,6 +538,12 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
             sol.nfev += warm.nfev
             what = "learned guess's structured candidates" if later is not None else "learned guess"
             sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
+        if seq_failed is not None:
+            sol.nit += seq_failed[0]
+            sol.nfev += seq_failed[1]
+            rec = seq_failed[2]
+            why = rec.get("error") or rec.get("skipped") or f"{rec.get('tried', 0)} tried, none verified"
+            sol.route = f"the tabled solutions' sequences gave nothing ({why[:120]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     if fallback == "eigenaxis" and not sol.success:
         end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf

@@ -359,7 +359,7 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
             rec["skipped"] = "no pointing-cones table covers the problem"
             return None, (0, 0)
         g = table.guess(prob, k=CONE_SEQUENCES)
-    except (OSError, ValueError, IndexError) as e:     # a damaged file: no answer from it
+    except Exception as e:   # noqa: BLE001 - a damaged file or model: no answer from it, the solve goes on
         rec["error"] = f"{type(e).__name__}: {e}"[:300]
         return None, (0, 0)
     budget = min(float(budget), float(options.get("time_budget", 20.0)))
@@ -368,12 +368,17 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
     nit = nfev = tried = 0
     for nb in neighbours:
         left = budget - (time.perf_counter() - t0)
-        if left <= 0.0 and tried:
+        if left < CONE_SEQUENCE_MIN_LEFT:       # (not one optimisation round's time)
             break
         tried += 1
-        bang, kkt_guess, (n_it, n_fev) = bang_bang_from_sequences(
-            prob, [(nb.u_first, nb.switch_times, nb.tf)], time_budget=max(left, 0.0), tols=options.get("tols"),
-            source=f"the {nb.source} tabled solution", give_up_residual=CONE_SEQUENCE_GIVE_UP, kkt_tol=math.inf)
+        try:
+            bang, kkt_guess, (n_it, n_fev) = bang_bang_from_sequences(
+                prob, [(nb.u_first, nb.switch_times, nb.tf)], time_budget=left, tols=options.get("tols"),
+                source=f"the {nb.source} tabled solution", give_up_residual=CONE_SEQUENCE_GIVE_UP, kkt_tol=math.inf,
+                numbered=False)
+        except ValueError as e:     # a tabled sequence that is not one (a damaged table row)
+            rec.setdefault("errors", []).append(f"{nb.source}: {e}"[:200])
+            continue
         nit, nfev = nit + n_it, nfev + n_fev
         if bang is not None and (best is None or bang.tf < best[0].tf):
             best = (bang, kkt_guess, nb)
@@ -383,11 +388,12 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
         return None, (nit, nfev)
     bang, kkt_guess, nb = best
     bang.nit, bang.nfev, bang.n_candidates = nit, nfev, tried
-    prefix = f"the {CONE_SEQUENCES} nearest tabled solutions' sequences ({tried} tried)"
+    prefix = f"the {len(neighbours)} nearest tabled solutions' sequences ({tried} tried)"
     # (beyond the sequences' own budget, never beyond the solve's)
     left = min(budget + CONE_SEQUENCE_EXACT_BUDGET, float(options.get("time_budget", math.inf))) - (
         time.perf_counter() - t0)
-    ex = exact_near_bang_bang(prob, bang, kkt_guess, nb, options, min(CONE_SEQUENCE_EXACT_BUDGET, left))
+    ex, (x_nit, x_nfev), why = exact_near_bang_bang(prob, bang, kkt_guess, nb, options,
+                                                    min(CONE_SEQUENCE_EXACT_BUDGET, left))
     rec["exact"] = ex is not None
     if ex is not None:
         ex.nit, ex.nfev = ex.nit + nit, ex.nfev + nfev
@@ -395,7 +401,10 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
         ex.route = f"{prefix} → {bang.route} → {ex.route}"
         answer = ex
     else:
-        bang.route = f"{prefix} → {bang.route}"
+        # the exact attempt's work is counted, and why it gave nothing said
+        bang.nit, bang.nfev = bang.nit + x_nit, bang.nfev + x_nfev
+        rec["exact_reason"] = why
+        bang.route = f"{prefix} → {bang.route}; no exact extremal at it ({why[:160]})"
         answer = bang
     rec.update(used=True, time_s=time.perf_counter() - t0)
     answer.wall_time = time.perf_counter() - t0
@@ -410,30 +419,35 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbour, options, budget):
     ``TOUCH_MARGIN_SEQUENCE`` on an RK4 replay), the touch-point extremal
     (``cone_touch.solve_touch_guess``) from those touches, the answer's instants and the
     ``neighbour``'s costates and touch multipliers. Kept only if not slower than ``bang`` (by
-    1e-6: another extremal is a slower local optimum)."""
+    1e-6: another extremal is a slower local optimum). Returns ``(extremal or None, (nit,
+    nfev) of the attempt, why there is none)``."""
     from .cone_touch import solve_touch_guess
     from .guesses import Guess
     t0 = time.perf_counter()
     if budget <= 0.0:
-        return None
+        return None, (0, 0), "no time left"
     if kkt_guess is not None:
         ex = multistart.guess_alone(prob.replace(cones=[]), kkt_guess, options, budget, with_candidates=False)
         ex.problem = prob
-        if not (ex.success and certify_clear(prob, ex)):
-            ex = None
+        if ex.success and not certify_clear(prob, ex):
+            ex.success = False
+            ex.message = (f"the extremal without cones from its KKT costates enters a cone (certified clearance "
+                          f"{ex.verification['cone_clearance']['value']:.3g} rad)")
     else:
         touches = touches_on_path(prob, bang, neighbour.touches)
-        ex = None
-        if touches:
-            g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
-                      source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
-            g.touches = touches
-            ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=budget - (time.perf_counter() - t0),
-                                   smoothing=False)
-            ex = ex if ex.success else None
-    if ex is None or ex.tf > bang.tf * (1.0 + 1e-6):
-        return None
-    return ex
+        if not touches:
+            return None, (0, 0), "its path neither keeps clear of the cones nor touches one at isolated instants"
+        g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
+                  source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
+        g.touches = touches
+        ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=budget - (time.perf_counter() - t0),
+                               smoothing=False)
+    work = (int(ex.nit), int(ex.nfev))
+    if not ex.success:
+        return None, work, ex.message
+    if ex.tf > bang.tf * (1.0 + 1e-6):
+        return None, work, f"the extremal found, tf {ex.tf:.9g}, is slower than the bang-bang answer"
+    return ex, (0, 0), ""
 
 
 # rad: where the margin of a bang-bang answer's path has a local minimum below this, it touches a

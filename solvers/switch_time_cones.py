@@ -377,7 +377,9 @@ def bang_bang_cone_answer(problem, col, time_budget=1.0, tols=None):
     and the cone clearance certified at every instant on that replay (``cone_clearance`` ≥
     ``CLEARANCE_TOL``). ``method="switch-time"``; ``exact`` is False; ``costate0`` is
     collocation's estimate and the dense costates are NaN (the cone constraints' multipliers
-    make the KKT costates jump, so they are not reported)."""
+    make the KKT costates jump, so they are not reported), except where the answer's path keeps
+    clear of every cone and is a KKT point of its sequence: there both are its KKT costates
+    (``_costates_where_clear``), as for a full-attitude answer without cones."""
     from .switch_time_opt import answer_from_collocation
     if (not col.success or not switch_time_cones_applies(problem) or col.switch_times is None or col.t is None
             or len(col.t) < 2 or rate_limit_active(problem, col)):

@@ -454,7 +454,7 @@ def answer_from_collocation(problem, col, bvp, optimise, time_budget, tols, max_
 
 
 def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_rel_tol=math.nan, source="table",
-                             max_iter=None, kkt_tol=None, give_up_residual=math.inf):
+                             max_iter=None, kkt_tol=None, give_up_residual=math.inf, numbered=True):
     """``(answer, kkt_guess, (nit, nfev))`` like ``bang_bang_answer``, from given switching
     sequences instead of a collocation answer: ``sequences`` holds ``(u_first, switch_times,
     tf)`` in the problem's units (per-axis lists of instants, for instance a near problem's
@@ -474,7 +474,10 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     Keep-out cones and pointing targets: the sequences are optimised with the cones imposed
     (``switch_time_cones.optimise_switch_times_cones``, which stops a sequence after a round
     whose boundary residual stays above ``give_up_residual``), and the clearance is certified
-    on the replay; such answers have no KKT guess and report ``costate0`` NaN."""
+    on the replay; their KKT costates (and guess) exist only where the path keeps clear of every
+    cone (``switch_time_cones._costates_where_clear``), else ``costate0`` is NaN. ``numbered``
+    (default): the route numbers the sequence and counts those tried (a caller that passes one
+    sequence at a time says so itself)."""
     from .switch_time_cones import SLSQP_ITERATIONS as CONE_ITERATIONS
     from .switch_time_cones import optimise_switch_times_cones, switch_time_cones_applies
     t0 = time.perf_counter()
@@ -522,7 +525,8 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
         T = r.T * tau
         comparison = (f"not compared with collocation (tf_tol {tf_rel_tol:.1g} of tf, measured on held-out problems)"
                       if tf_rel_tol == tf_rel_tol else "not compared with collocation (tf_tol not estimated)")
-        answer, kkt_guess = _answer(problem, bvp, r, tols, f"the sequence of {source} {tried}", "", comparison,
+        what = f"the sequence of {source} {tried}" if numbered else f"the sequence of {source}"
+        answer, kkt_guess = _answer(problem, bvp, r, tols, what, "", comparison,
                                     lambda att, T=T: max(T * tf_rel_tol, T * 10.0 * att) if tf_rel_tol == tf_rel_tol
                                     else math.nan, None, t0)
         if answer is not None:
@@ -530,7 +534,8 @@ def bang_bang_from_sequences(problem, sequences, time_budget=0.2, tols=None, tf_
     if best is None:
         return None, None, (nit, nfev)
     r, answer, kkt_guess = best
-    answer.route += f"; {tried} sequence(s) tried"
+    if numbered:
+        answer.route += f"; {tried} sequence(s) tried"
     answer.guess, answer.n_candidates = source, tried
     answer.nit, answer.nfev = nit, nfev
     answer.wall_time = time.perf_counter() - t0

@@ -74,8 +74,8 @@ class ConeEnsembleWarmStart:
                     try:
                         p = canonical_problem(a["X"][int(rows[0])])
                         solve(p, self.table.guess(p, k=1))
-                    except ValueError:
-                        pass        # a warm-up only: any answer (or none) loads the kernels
+                    except Exception:   # noqa: BLE001 - a warm-up only: any answer (or none, or a
+                        pass            # damaged table's error, which the candidates then record) loads the kernels
         finally:
             # once, whatever happened (set after the solves: a concurrent first call warms too,
             # rather than racing ahead with cold kernels)

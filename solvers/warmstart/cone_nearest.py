@@ -20,7 +20,7 @@ import numpy as np
 from slew_env import SlewProblem
 from ..guesses import Guess
 from ..core import warmstart_kernels as _k
-from .cone_features import MAX_CONES, cone_canonical_form, cone_unsupported_reason, solution_from_canonical
+from .cone_features import MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason, solution_from_canonical
 from .model import ModelFileError
 from .nearest import NN_FORMAT, NN_FORMAT_VERSION, neighbour_count, table_coverage
 
@@ -35,6 +35,17 @@ class ConeNearestNeighbourModel:
         if self.a["X"].ndim != 2 or self.a["X"].shape[0] == 0:
             raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
         a = self.a
+        n = a["X"].shape[0]
+        # every array's shape, before compiled code reads rows of them (a table saved with another
+        # layout had been read past its arrays' ends, or raised numba's typing errors mid-solve)
+        shapes = {"X": (n, N_CONE_FEATURES), "Z": (n, 6), "T": (n,), "T_ref": (n,), "U": (n, 3),
+                  "touch": (n, MAX_CONES), "frac": (n, MAX_CONES), "log_nu": (n, MAX_CONES)}
+        for key, want in shapes.items():
+            if a[key].shape != want:
+                raise ValueError(f"{key}: the pointing-cones table's array has shape {a[key].shape}, expected {want}")
+        if a["F"].ndim != 3 or a["F"].shape[:2] != (n, 3) or a["F"].shape[2] < 1:
+            raise ValueError(f"F: the pointing-cones table's switch fractions have shape {a['F'].shape}, expected "
+                             f"({n}, 3, K)")
         if not (np.all(np.isfinite(a["X"])) and np.all(np.isfinite(a["Z"])) and np.all(a["T"] > 0)
                 and np.all(a["T_ref"] > 0) and np.all(np.isfinite(a["T"])) and np.all(np.isfinite(a["T_ref"]))):
             raise ValueError("X, Z, T, T_ref: the features and costates must be finite and the times positive")
@@ -98,6 +109,8 @@ class ConeNearestNeighbourModel:
                     name=card.get("name", "nearest-neighbour (pointing-cones)"))
         except KeyError as e:
             raise ModelFileError(f"model: {path} lacks the array {e}") from None
+        except ValueError as e:
+            raise ModelFileError(f"model: {path}: {e}") from None
         t.data_files = list(card.get("data_files") or [])
         return t
 
