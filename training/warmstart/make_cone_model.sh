@@ -7,7 +7,8 @@
 # 62 % came out exact; seeds 32 and 33 after later solver fixes, 81 % (docs/DATASET.md; records
 # name their solver_commit). A rerun of step 1 today gives about 81 % on seed 31 too: more exact
 # training solutions and a different model, not the shipped one.
-# On 2 cores: about 55 min (1), 50 min (2), 1 min (3), 5 min (4), 50 min (5), 5 min (6), 2 min (7).
+# On 2 cores: about 55 min (1), 50 min (2), 1 min (3), 5 min (4), 50 min (5), 5 min (6), 2 min (7),
+# 45 min and 7 min (8), 2 min (9).
 set -euo pipefail
 mkdir -p runs/data runs
 
@@ -65,4 +66,21 @@ slew train --config training/warmstart/configs/pointing-cones.yaml \
 #    against the nearest-neighbour lookup of the same solutions
 slew evaluate --family pointing-cones --model pointing-cones \
     --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones-heads \
+    --train-data solvers/warmstart/models/pointing-cones.nn.npz
+
+# 8. (session 40) 10,000 more problems (seeds 36 and 37; the code of that day, with the session-39
+#    model shipped), then the shipped network retrained, as in step 6, on the table shipped in
+#    session 39 (whose card names its data files) and the exact solutions of seeds 36 and 37
+git show fede8b8:solvers/warmstart/models/pointing-cones.nn.npz > runs/data/pointing-cones-s31-35.nn.npz
+slew generate --family pointing-cones --n 5000 --seed 36 -o runs/data/pointing-cones-s36.jsonl --workers 2
+slew generate --family pointing-cones --n 5000 --seed 37 -o runs/data/pointing-cones-s37.jsonl --workers 2
+slew train --config training/warmstart/configs/pointing-cones.yaml \
+    --data runs/data/pointing-cones-s31-35.nn.npz runs/data/pointing-cones-s36.jsonl \
+           runs/data/pointing-cones-s37.jsonl \
+    --out runs/ws-cones-s40 --seed 0 --export solvers/warmstart/models/pointing-cones.npz
+
+# 9. its evaluation (docs/WARMSTART.md; the learned+table row: the sequences of the nearest tabled
+#    solutions where the candidates fail, solvers/cone_routes.py)
+slew evaluate --family pointing-cones --model pointing-cones \
+    --n 1000 --seed 20261122 --baseline-n 50 --out runs/evaluate-cones-s40 \
     --train-data solvers/warmstart/models/pointing-cones.nn.npz
