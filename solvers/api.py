@@ -104,7 +104,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     start challenges the default route's answer afterwards, replacing it only with a faster
     verified extremal: ``cone_challenge``, below; under a ``time_budget`` shorter than
     ``cone_routes.CONE_LEARNED_FIRST_BELOW``, 0.4 s, which the collocation route does not fit in, that
-    warm start goes first instead, within half the budget, and where it finds no extremal the
+    warm start goes first instead, within half the budget (all of it where the other half is
+    under 60 ms, ``cone_routes.short_learned_budget``), and where it finds no extremal the
     switching sequences of its nearest tabled solutions are optimised with the cones imposed,
     ``cone_routes.cone_sequences_route``: a verified bang-bang slew, ``method="switch-time"``, or
     the exact extremal at it where one is found), ``"pointing-cones"`` (that warm start as the first

@@ -23,8 +23,9 @@ CONE_WARM_BUDGET = 0.2
 # s: below this time budget ``auto`` with cones tries the shipped pointing-cones warm start before
 # its collocation route, not after it: collocation's starts and 80-interval solve take 0.3-0.5 s
 # (bench_budget, 10 seed-5 problems: none finished in 0.2 s, all in 0.5 s), so under a shorter
-# budget the route ends without an answer and the learned guess's verified extremal (62 % of
-# held-out problems, 25 ms median; a slower local extremal on 4 in 10 of those) is the best on offer
+# budget the route ends without an answer and the learned guess's verified extremal (70 % of
+# held-out problems, 21 ms median, session 40; a slower local extremal on 4 in 10 of those) is the
+# best on offer
 CONE_LEARNED_FIRST_BELOW = 0.4
 # ... and there the learned candidates get at most this share of the budget, the tabled
 # solutions' sequences (``cone_sequences_route``) what is left after them, where that share is at
@@ -309,14 +310,15 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
 
 # the pointing-cones table's sequences route (``cone_sequences_route``): the switching sequences
 # of this many nearest tabled solutions, optimised with the cones imposed, the fastest verified
-# kept. On the 133 of held-out problems 0-399 where the shipped warm start's candidates failed
-# (session 40, runs/s40/st_proto.py, no budget): 133 verified; against solve()'s answers
-# (collocation route) a median gap of 6.9e-5 with 4 sequences, 1.3e-4 with 3, 7.2e-4 with the
-# first alone (17, 17 and 36 more than 1 % slower). Within 0.5 s on a loaded machine, 130
+# kept. On the 133 of held-out problems 0-399 where the session-39 warm start's candidates
+# failed (session 40, runs/s40/st_proto.py, 2 s a problem): 132 verified (133 with 5 s a
+# sequence); against solve()'s answers (collocation route) a median gap of 6.9e-5 with 4
+# sequences, 1.3e-4 with 3, 7.2e-4 with the first alone (17, 17 and 36 more than 1 % slower; the
+# first alone verified 110). With 0.5 s and the exact attempt after it, on a loaded machine, 130
 # (runs/s40/route_eval.py)
 CONE_SEQUENCES = 4
 CONE_SEQUENCE_BUDGET = 0.5      # s
-# a sequence whose boundary residual is still above this after its first round is dropped
+# a sequence whose boundary residual is still above this after a round is dropped
 CONE_SEQUENCE_GIVE_UP = 1e-2
 # s: under a short time budget the sequences are not started with less than this left
 CONE_SEQUENCE_MIN_LEFT = 0.02
