@@ -508,8 +508,9 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
                 rest["time_budget"] = stage_budget.left(rest["time_budget"], time.perf_counter() - t_table)
         if sol is None and info and float(options.get("time_budget", 20.0)) <= time.perf_counter() - t0:
             # the learned stage spent the budget: no route (building an NLP is not interruptible)
-            sol = stage_budget.budget_spent(prob, "The learned guess's candidates (and the singular table's routes, where "
-                                            "they ran)", *spent_table, t0, "no time left for the default route")
+            what = ("The learned guess's candidates (and the tabled solutions' sequences, where they ran)" if prob.cones
+                    else "The learned guess's candidates (and the singular table's routes, where they ran)")
+            sol = stage_budget.budget_spent(prob, what, *spent_table, t0, "no time left for the default route")
             if neighbours_bang is not None:
                 sol = warm_routes.faster_verified(sol, neighbours_bang)
         if sol is None:
@@ -534,17 +535,17 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         sol = no_slower_than_eigenaxis(prob, sol, t0)
     if info:
         sol.warm_start = info
-        if warm is not None:
-            sol.nit += warm.nit
-            sol.nfev += warm.nfev
-            what = "learned guess's structured candidates" if later is not None else "learned guess"
-            sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
-        if seq_failed is not None:
+        if seq_failed is not None:      # (they ran after the learned guess: named after it)
             sol.nit += seq_failed[0]
             sol.nfev += seq_failed[1]
             rec = seq_failed[2]
             why = rec.get("error") or rec.get("skipped") or f"{rec.get('tried', 0)} tried, none verified"
             sol.route = f"the tabled solutions' sequences gave nothing ({why[:120]}) → {sol.route}"
+        if warm is not None:
+            sol.nit += warm.nit
+            sol.nfev += warm.nfev
+            what = "learned guess's structured candidates" if later is not None else "learned guess"
+            sol.route = f"{what} failed ({warm.message[:160]}) → {sol.route}"
         sol.wall_time = time.perf_counter() - t0
     if fallback == "eigenaxis" and not sol.success:
         end = t0 + float(options["time_budget"]) + reserved if "time_budget" in options else math.inf

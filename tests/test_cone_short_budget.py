@@ -77,6 +77,10 @@ def test_where_the_learned_guess_fails_the_sequences_then_the_route_get_what_is_
     assert sol.success and sol.method == "eigenaxis" and "waypoint" in sol.route
     assert sol.warm_start["model"] == "stub" and not sol.warm_start["succeeded"]
     assert sol.warm_start["neighbour_sequences"] == {"used": False}
+    # in the order they ran: the learned candidates, the sequences, the route
+    assert sol.route.index("learned guess failed (stub learned failure)") < sol.route.index(
+        "the tabled solutions' sequences gave nothing") < sol.route.index("route stub")
+    assert (sol.nit, sol.nfev) >= (4 + 5, 40 + 50)
 
 
 def test_a_verified_sequences_answer_ends_the_solve(calls):
