@@ -324,7 +324,9 @@ CONE_SEQUENCE_GIVE_UP = 1e-2
 CONE_SEQUENCE_MIN_LEFT = 0.02
 # s: the exact extremal at the sequences' answer (``exact_near_bang_bang``), beyond their budget.
 # On the 133 problems above (a loaded machine, runs/s40/route_eval.py): 0.06 s gave 37 exact
-# extremals (27 at solve()'s answer), 0.2 s 41 (31); 85 of the 133 have an exact optimum
+# extremals (27 at solve()'s answer), 0.2 s 41 (31); 85 of the 133 have an exact optimum. With
+# the session-40 table, on a quiet machine, 0.15 s: 45 with the winning neighbour's costates
+# alone, 48 trying the others' after them (route_015_single/multi.jsonl)
 CONE_SEQUENCE_EXACT_BUDGET = 0.15
 # a touch multiplier where no neighbour's touch of that cone gives one
 TOUCH_NU_GUESS = 0.05
@@ -394,7 +396,9 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
     # (beyond the sequences' own budget, never beyond the solve's)
     left = min(budget + CONE_SEQUENCE_EXACT_BUDGET, float(options.get("time_budget", math.inf))) - (
         time.perf_counter() - t0)
-    ex, (x_nit, x_nfev), why = exact_near_bang_bang(prob, bang, kkt_guess, nb, options,
+    # (the winning neighbour's costates first, then the others', for a touching path)
+    others = [c for c in neighbours if c is not nb]
+    ex, (x_nit, x_nfev), why = exact_near_bang_bang(prob, bang, kkt_guess, [nb] + others, options,
                                                     min(CONE_SEQUENCE_EXACT_BUDGET, left))
     rec["exact"] = ex is not None
     if ex is not None:
@@ -413,16 +417,17 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
     return answer, (0, 0)
 
 
-def exact_near_bang_bang(prob, bang, kkt_guess, neighbour, options, budget):
+def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
     """The exact extremal at a verified bang-bang answer ``bang`` of a cone problem (its switch
     instants and ``tf``), or ``None``: where its path keeps clear of the cones, the extremal of
     the problem without them from its KKT costates (``kkt_guess``), accepted only if its path
     clears every cone (certified); where it meets cones (margin minima below
     ``TOUCH_MARGIN_SEQUENCE`` on an RK4 replay), the touch-point extremal
-    (``cone_touch.solve_touch_guess``) from those touches, the answer's instants and the
-    ``neighbour``'s costates and touch multipliers. Kept only if not slower than ``bang`` (by
-    1e-6: another extremal is a slower local optimum). Returns ``(extremal or None, (nit,
-    nfev) of the attempt, why there is none)``."""
+    (``cone_touch.solve_touch_guess``) from those touches and the answer's instants, with the
+    costates and touch multipliers of each of ``neighbours`` in turn (each attempt at most
+    ``CONE_CANDIDATE_CAP``), until one converges or ``budget`` is spent. Kept only if not slower
+    than ``bang`` (by 1e-6: another extremal is a slower local optimum). Returns ``(extremal or
+    None, (nit, nfev) of the attempts, why there is none)``."""
     from .cone_touch import solve_touch_guess
     from .guesses import Guess
     t0 = time.perf_counter()
@@ -435,16 +440,29 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbour, options, budget):
             ex.success = False
             ex.message = (f"the extremal without cones from its KKT costates enters a cone (certified clearance "
                           f"{ex.verification['cone_clearance']['value']:.3g} rad)")
+        work = (int(ex.nit), int(ex.nfev))
     else:
-        touches = touches_on_path(prob, bang, neighbour.touches)
+        touches = touches_on_path(prob, bang, neighbours[0].touches)
         if not touches:
             return None, (0, 0), "its path neither keeps clear of the cones nor touches one at isolated instants"
-        g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
-                  source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
-        g.touches = touches
-        ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=budget - (time.perf_counter() - t0),
-                               smoothing=False)
-    work = (int(ex.nit), int(ex.nfev))
+        nit = nfev = 0
+        ex = None
+        for neighbour in neighbours:
+            left = budget - (time.perf_counter() - t0)
+            if left <= 0.0:
+                break
+            g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
+                      source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
+            g.touches = [(c, t, next((nu for k, _, nu in (neighbour.touches or []) if k == c), n0))
+                         for c, t, n0 in touches]
+            ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=min(left, CONE_CANDIDATE_CAP),
+                                   smoothing=False)
+            nit, nfev = nit + int(ex.nit), nfev + int(ex.nfev)
+            if ex.success:
+                break
+        if ex is None:
+            return None, (0, 0), "no time left"
+        work = (nit, nfev)
     if not ex.success:
         return None, work, ex.message
     if ex.tf > bang.tf * (1.0 + 1e-6):
