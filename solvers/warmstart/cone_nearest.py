@@ -85,7 +85,13 @@ class ConeNearestNeighbourModel:
                 self._slot_bound[k] = float(((X[present[:, k], sl] / s[sl]) ** 2).sum(axis=1).min())
         for pattern in np.unique(present, axis=0):
             rows = np.flatnonzero((present == pattern).all(axis=1))
-            self._groups[tuple(bool(v) for v in pattern)] = (rows, np.ascontiguousarray(self._XT[:, rows]))
+            # only the features of the pattern's slots (and the 9 of the slew): the others are
+            # zeros in its rows and in a query of that pattern, and add exactly nothing to a
+            # distance (a 1-cone query scans 14 features, not 24)
+            dims = np.concatenate([np.arange(9)] + [np.arange(9 + 5 * k, 14 + 5 * k)
+                                                    for k in range(MAX_CONES) if pattern[k]])
+            self._groups[tuple(bool(v) for v in pattern)] = (rows, np.ascontiguousarray(self._XT[np.ix_(dims, rows)]),
+                                                             dims)
 
     def _other_pattern_bound(self, xs, pattern) -> float:
         """A lower bound of the squared standardised distance from the query (standardised
@@ -151,8 +157,9 @@ class ConeNearestNeighbourModel:
         group = self._groups.get(pattern)
         if group is not None and group[0].size >= k and all(
                 has or not np.any(x[9 + 5 * j:14 + 5 * j]) for j, has in enumerate(pattern)):
-            rows, XT = group
-            if _k.nearest_rows_kth(XT, xs, k, idx) < (1.0 - 1e-4) * self._other_pattern_bound(xs, pattern):
+            rows, XT, dims = group
+            if _k.nearest_rows_kth(XT, np.ascontiguousarray(xs[dims]), k, idx) < (
+                    (1.0 - 1e-4) * self._other_pattern_bound(xs, pattern)):
                 return rows[idx]
         return _k.nearest_rows(self._XT, xs, k, idx)
 
