@@ -330,6 +330,8 @@ CONE_SEQUENCE_MIN_LEFT = 0.02
 CONE_SEQUENCE_EXACT_BUDGET = 0.15
 # a touch multiplier where no neighbour's touch of that cone gives one
 TOUCH_NU_GUESS = 0.05
+# s: an exact attempt is not started with less than this left of its budget
+CONE_EXACT_MIN_LEFT = 0.005
 
 
 def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CONE_SEQUENCE_BUDGET):
@@ -445,12 +447,13 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
         touches = touches_on_path(prob, bang, neighbours[0].touches)
         if not touches:
             return None, (0, 0), "its path neither keeps clear of the cones nor touches one at isolated instants"
-        nit = nfev = 0
+        nit = nfev = tried = 0
         ex = None
         for neighbour in neighbours:
             left = budget - (time.perf_counter() - t0)
-            if left <= 0.0:
+            if left < CONE_EXACT_MIN_LEFT:      # (a converging attempt takes 8 ms or more)
                 break
+            tried += 1
             g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
                       source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
             g.touches = [(c, t, next((nu for k, _, nu in (neighbour.touches or []) if k == c), n0))
@@ -458,15 +461,18 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
             ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=min(left, CONE_CANDIDATE_CAP),
                                    smoothing=False)
             nit, nfev = nit + int(ex.nit), nfev + int(ex.nfev)
-            if ex.success:
-                break
+            if ex.success and ex.tf <= bang.tf * (1.0 + 1e-6):
+                break           # (a slower extremal is another local optimum: the next neighbour's costates)
         if ex is None:
             return None, (0, 0), "no time left"
         work = (nit, nfev)
+        if not ex.success or ex.tf > bang.tf * (1.0 + 1e-6):
+            ex.message = f"{tried} neighbours' costates tried; the last: {ex.message}"
     if not ex.success:
         return None, work, ex.message
     if ex.tf > bang.tf * (1.0 + 1e-6):
         return None, work, f"the extremal found, tf {ex.tf:.9g}, is slower than the bang-bang answer"
+    ex.nit, ex.nfev = work      # (every attempt's work, the failed ones' too)
     return ex, (0, 0), ""
 
 

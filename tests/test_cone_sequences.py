@@ -264,3 +264,29 @@ def test_a_touching_answer_tries_the_other_neighbours_costates(monkeypatch):
     winner = re.search(r"the sequence of the (nearest-neighbour\[\d\]) tabled solution", sol.route).group(1)
     costates = re.search(r"(nearest-neighbour\[\d\])'s costates", sol.route).group(1)
     assert winner != costates
+
+
+def test_every_attempts_work_is_counted_in_the_answer(monkeypatch):
+    """Problem 24's extremal comes from a later neighbour's costates: the Newton iterations of the
+    sequences and of every touch-point attempt, the failed ones too, are the answer's ``nit``."""
+    from solvers import cone_touch, switch_time_opt
+    monkeypatch.setattr(cone_routes, "CONE_SEQUENCE_EXACT_BUDGET", 5.0)
+    seen = {"seq": 0, "touch": []}
+    real_seq, real_touch = switch_time_opt.bang_bang_from_sequences, cone_touch.solve_touch_guess
+
+    def seq(*a, **k):
+        out = real_seq(*a, **k)
+        seen["seq"] += out[2][0]
+        return out
+
+    def touch(*a, **k):
+        out = real_touch(*a, **k)
+        seen["touch"].append((out.success, out.nit))
+        return out
+
+    monkeypatch.setattr(switch_time_opt, "bang_bang_from_sequences", seq)
+    monkeypatch.setattr(cone_touch, "solve_touch_guess", touch)
+    p = problem_for(GenerationSpec("pointing-cones", seed=20261122), 24)
+    sol, _ = cone_sequences_route(p, {}, {}, budget=20.0)
+    assert sol.exact and len(seen["touch"]) >= 2 and not seen["touch"][0][0] and seen["touch"][-1][0]
+    assert sol.nit == seen["seq"] + sum(n for _, n in seen["touch"])
