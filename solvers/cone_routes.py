@@ -396,7 +396,7 @@ def cone_sequences_route(prob, options, info, model="pointing-cones", budget=CON
     bang.nit, bang.nfev, bang.n_candidates = nit, nfev, tried
     prefix = f"the {len(neighbours)} nearest tabled solutions' sequences ({tried} tried)"
     # (beyond the sequences' own budget, never beyond the solve's)
-    left = min(budget + CONE_SEQUENCE_EXACT_BUDGET, float(options.get("time_budget", math.inf))) - (
+    left = min(budget + CONE_SEQUENCE_EXACT_BUDGET, float(options.get("time_budget", 20.0))) - (
         time.perf_counter() - t0)
     # (the winning neighbour's costates first, then the others', for a touching path)
     others = [c for c in neighbours if c is not nb]
@@ -456,8 +456,7 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
             tried += 1
             g = Guess(neighbour.costate0, bang.tf, [np.asarray(x, float) for x in bang.switch_times], bang.u_first,
                       source=f"the switch-time answer's instants and touches, {neighbour.source}'s")
-            g.touches = [(c, t, next((nu for k, _, nu in (neighbour.touches or []) if k == c), n0))
-                         for c, t, n0 in touches]
+            g.touches = [(c, t, _first_nu(neighbour.touches, c, n0)) for c, t, n0 in touches]
             ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=min(left, CONE_CANDIDATE_CAP),
                                    smoothing=False)
             nit, nfev = nit + int(ex.nit), nfev + int(ex.nfev)
@@ -488,17 +487,19 @@ def touches_on_path(prob, sol, known=None) -> list:
     ``TOUCH_MARGIN_SEQUENCE`` on an RK4 replay of a bang-bang answer ``sol``; ``ν`` that of the
     first touch of the same cone in ``known`` (a neighbour's touches), else ``TOUCH_NU_GUESS``."""
     from .clearance import cone_margins
+    from .switch_time_cones import margin_minima
     from .verify import replay_path
     t, x = replay_path(prob.inertia, prob.torque_max, prob.q0, prob.omega0, sol.switch_times, sol.u_first, sol.tf,
                        TOUCH_REPLAY_STEPS)
     m = cone_margins(prob, x[:, 0:4])
-    out = []
-    for k in range(m.shape[1]):
-        mk = m[:, k]
-        idx = np.flatnonzero((mk[1:-1] <= mk[:-2]) & (mk[1:-1] <= mk[2:]) & (mk[1:-1] < TOUCH_MARGIN_SEQUENCE)) + 1
-        nus = [nu for c, _, nu in (known or []) if c == k]
-        out += [(k, float(t[i]), float(nus[0]) if nus else TOUCH_NU_GUESS) for i in idx]
+    out = [(k, float(t[i]), _first_nu(known, k, TOUCH_NU_GUESS))
+           for k in range(m.shape[1]) for i in margin_minima(m[:, k], TOUCH_MARGIN_SEQUENCE)]
     return sorted(out, key=lambda c: c[1])
+
+
+def _first_nu(touches, cone, default) -> float:
+    """``ν`` of the first of ``touches`` (``[(cone, instant, ν)]``) on ``cone``, else ``default``."""
+    return float(next((nu for c, _, nu in (touches or []) if c == cone), default))
 
 
 def bang_bang_cones(prob, col, options, left):

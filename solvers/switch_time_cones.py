@@ -43,9 +43,9 @@ from .attitude_bvp import AttitudeBVP, step_budget
 from .core.attitude_flow import MODE_BANG
 from .core.cone_penalty import cone_matrix, sampled_margins
 from .clearance import cone_margins
-from .core.control_replay import replay_bang_bang_path
 from .core.switch_sequence import sequence_samples
 from .switch_time import propagate_sequence
+from .verify import replay_path
 from .switch_time_opt import (SwitchTimeOptResult, _start_state, checked_sequence, evaluated_sequence,
                               order_constraints)
 
@@ -213,10 +213,9 @@ def _costates_where_clear(bvp, problem, v, axes, signs0, y0, A, rows, stats):
     n = axes.shape[0]
     T = float(v[n])
     if problem.cones:
-        ev = np.clip(v[:n], 0.0, T)
-        o = np.argsort(ev, kind="stable")
-        _, X = replay_bang_bang_path(np.ascontiguousarray(y0[:7]), bvp.umax, bvp.J, ev[o], axes[o], signs0, T,
-                                     float(CLEAR_STEPS))
+        # (an iterate's instant past tf switches nothing)
+        sw = [np.clip(v[:n][axes == i], 0.0, T) for i in range(3)]
+        _, X = replay_path(bvp.J, bvp.umax, y0[0:4], y0[4:7], sw, signs0, T, CLEAR_STEPS)
         if not (np.all(np.isfinite(X)) and float(cone_margins(problem, X[:, 0:4]).min()) > CLEAR_MARGIN):
             return nan
     out = propagate_sequence(bvp, v[:n], axes, signs0, T, y0, True)
@@ -303,15 +302,19 @@ def _new_samples(y0, v, n, axes, signs0, args, cones, fracs, deadline):
     h = dense[1] - dense[0]
     new = []
     for k in range(g.shape[1]):
-        m = g[:, k]
-        idx = np.flatnonzero((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < NEAR)) + 1
-        for i in idx:
+        for i in margin_minima(g[:, k], NEAR):
             new.extend(dense[i] + h * np.arange(-(CLUSTER // 2), CLUSTER // 2 + 1))
     new = np.asarray(new, float)
     new = new[(new > 0.0) & (new < 1.0)]
     if new.size and fracs.size:
         new = new[np.min(np.abs(new[:, None] - fracs[None, :]), axis=1) > 1e-9]
     return new, worst
+
+
+def margin_minima(m, below) -> np.ndarray:
+    """Indices of the interior local minima of the sampled margin ``m`` (one cone's, along a
+    path) that lie below ``below``."""
+    return np.flatnonzero((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < below)) + 1
 
 
 def _margins(X, cones):
