@@ -55,6 +55,33 @@ def test_cone_canonical_form_ignores_the_labelling_of_body_axes():
         np.testing.assert_allclose(cone_canonical_form(q).x, base, atol=1e-12)
 
 
+def test_the_forms_axis_maps_are_those_of_its_permutation_for_every_sensor_axis():
+    """``form_of_supported`` fills ``axial``, ``order``, ``order_array`` and ``slots_array`` from
+    its candidates' tables: for the sensor along each of the six body directions (the mirror
+    images among the candidates) they are ``A``'s own: ``det(A) A``, its rows' axes, the slots."""
+    from slew_env import TaskDistribution
+    dist = TaskDistribution.family("pointing-cones")
+    seen = set()
+    for i in range(12):
+        p = dist.sample(np.random.default_rng([77, i]))
+        for s in (np.eye(3), -np.eye(3)):
+            q = p.replace(sensor_axis=s[i % 3])
+            cf = cone_canonical_form(q)
+            A = cf.A
+            order = np.abs(A).argmax(axis=1)
+            assert list(cf.order) == order.tolist() and cf.order_array.tolist() == order.tolist()
+            np.testing.assert_array_equal(cf.axial, np.linalg.det(A).round() * A)
+            assert cf.slots_array.dtype == np.int64 and cf.slots_array.tolist() == list(cf.slots)
+            np.testing.assert_allclose(A @ q.sensor_axis, [1.0, 0.0, 0.0])
+            seen.add(round(np.linalg.det(A)))
+    assert seen == {-1, 1}      # rotations and reflections both taken
+    # the sensor's key is remembered by its bytes: a sensor off the body axes stays refused
+    off = TOUCH.replace(sensor_axis=[1.0, 1e-3, 0.0])
+    for _ in range(2):
+        with pytest.raises(ValueError, match="sensor_axis: the canonical form needs the sensor along a body axis"):
+            cone_canonical_form(off)
+
+
 def _mirror(p, P):
     """The mirror image of a slew: inertial and body frames reflected together by ``P``."""
     R0 = Rotation.from_quat(np.roll(p.q0, -1)).as_matrix()

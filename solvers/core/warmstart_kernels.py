@@ -281,8 +281,10 @@ def _arc_margin(a, half_angle, d):
 def cone_canonical(q0, target, J, umax, cand_A, cand_perm, cand_sg, cone_axes, half_angles):
     """The pointing-cones canonical form (``solvers.warmstart.cone_features``) of the slew from
     ``q0`` that points the sensor at ``target`` past cones with inertial axes ``cone_axes``
-    (n, 3): ``(A, x, T_ref, slots)``. ``cand_*``: the signed permutations with ``A s = +x`` for
-    the sensor ``s``, as ``(A v)_i = sg[i] v[perm[i]]``."""
+    (n, 3): ``(A, x, T_ref, slots, best, tau)``, ``best`` the index of ``A`` among the
+    candidates, ``tau = sqrt(J_max / u_max)`` the time unit.
+    ``cand_*``: the signed permutations with ``A s = +x`` for the sensor ``s``, as
+    ``(A v)_i = sg[i] v[perm[i]]``."""
     n = cone_axes.shape[0]
     if n > 3:
         raise ValueError("cone_canonical: at most 3 cones (MAX_CONES)")
@@ -343,7 +345,7 @@ def cone_canonical(q0, target, J, umax, cand_A, cand_perm, cand_sg, cone_axes, h
         amax = max(amax, abs(Jn[i] * ax[i]) / un[i])
     acc = 1.0 / amax                        # the per-axis bound (guesses.eigenaxis_acceleration)
     T_ref = 2.0 * math.sqrt(max(th, 1e-6) / acc)
-    return A, x, T_ref, slots
+    return A, x, T_ref, slots, best, math.sqrt(Jmax / umx)
 
 
 @njit(cache=True)
@@ -441,6 +443,54 @@ def nearest_rows(XT, x, k, idx):
     order two rows differently from float64 only when they are within about 1e-7 relative."""
     nearest_rows_kth(XT, x, k, idx)
     return idx
+
+
+@njit(cache=True)
+def cone_query_plan(x, scale, slot_has, slot_lacks, slot_bound):
+    """The cone table's query plan for canonical features ``x`` (``cone_nearest.nearest``):
+    ``(finite, code, xs, bound)``. ``xs = x / scale``; ``code`` the presence pattern of the 3
+    cone slots (bit ``k`` set where slot ``k``'s flag ``x[13 + 5k]`` is above 0.5), or -1 where
+    an absent slot has features other than zeros (such a query is not grouped); ``bound`` a
+    lower bound of the squared standardised distance to every row of another pattern: over
+    the slots where the patterns can differ, the query's own slot norm (it has the slot, some
+    row lacks it) or the table's least (``slot_bound``: the row has it, the query lacks it)."""
+    n = x.shape[0]
+    xs = np.empty(n)
+    finite = True
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            finite = False
+        xs[i] = x[i] / scale[i]
+    code = 0
+    bound = np.inf
+    for k in range(3):
+        b = 9 + 5 * k
+        if x[b + 4] > 0.5:
+            code += 1 << k
+            if slot_lacks[k]:
+                v = 0.0
+                for j in range(b, b + 5):
+                    v += xs[j] * xs[j]
+                bound = min(bound, v)
+        else:
+            for j in range(b, b + 5):
+                if x[j] != 0.0:
+                    code = -1
+            if slot_has[k]:
+                bound = min(bound, slot_bound[k])
+        if code < 0:
+            break
+    return finite, code, xs, bound
+
+
+@njit(cache=True, fastmath=True)
+def nearest_rows_kth_dims(XT, xs, dims, k, idx):
+    """``nearest_rows_kth`` of the query's features ``xs[dims]`` (the table ``XT`` holds only
+    those features)."""
+    xq = np.empty(dims.shape[0])
+    for j in range(dims.shape[0]):
+        xq[j] = xs[dims[j]]
+    return nearest_rows_kth(XT, xq, k, idx)
 
 
 @njit(cache=True, fastmath=True)

@@ -72,14 +72,13 @@ class ConeCanonicalForm:
     T_ref: float            # nondimensional time of the eigenaxis pointing slew (cones ignored)
     slots: tuple            # slots[k] = index of the problem cone in canonical slot k
 
-    @cached_property        # (the form is immutable; read for every candidate mapped back)
+    # (the form is immutable; these are read for every candidate mapped back.
+    # ``form_of_supported`` fills them from its candidates' tables: 5 µs a problem less)
+    @cached_property
     def axial(self) -> np.ndarray:
         """The map of axial body vectors (rates, torques, costates): ``det(A) A`` (for a signed
         permutation, det is the product of its signs times the permutation's parity)."""
-        o = self.order
-        det = self.A[0, o[0]] * self.A[1, o[1]] * self.A[2, o[2]]
-        even = (o[0], o[1], o[2]) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
-        return (det if even else -det) * self.A
+        return _axial(self.A, self.order)
 
     @cached_property
     def order(self) -> list:
@@ -110,8 +109,25 @@ def cone_unsupported_reason(problem: SlewProblem) -> Optional[str]:
 
 def _sensor_key(sensor_axis):
     """``(axis, positive)`` of a sensor along a body axis, else None (plain floats: this runs
-    for every guess)."""
-    s = [float(v) for v in sensor_axis]
+    for every guess; remembered for the last few sensor axes seen, by their bytes, since a
+    warm start asks twice a problem and a mission has one or two sensors)."""
+    if isinstance(sensor_axis, np.ndarray) and sensor_axis.dtype == np.float64:
+        b = sensor_axis.tobytes()
+        key = _SENSOR_KEYS.get(b, _UNKNOWN)
+        if key is _UNKNOWN:
+            key = _sensor_key_of([float(v) for v in sensor_axis])
+            if len(_SENSOR_KEYS) >= 16:
+                _SENSOR_KEYS.clear()
+            _SENSOR_KEYS[b] = key
+        return key
+    return _sensor_key_of([float(v) for v in sensor_axis])
+
+
+_SENSOR_KEYS = {}
+_UNKNOWN = object()
+
+
+def _sensor_key_of(s):
     n = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
     i = max(range(3), key=lambda k: abs(s[k]))
     if abs(s[i]) / n < 1.0 - 1e-12:
@@ -121,11 +137,23 @@ def _sensor_key(sensor_axis):
 
 def _candidates(s):
     """The signed permutations ``A`` with ``A s = +x``, as arrays ``(A (m, 3, 3), perm (m, 3),
-    signs (m, 3))`` with ``(A v)_i = signs[i] v[perm[i]]`` (``warmstart_kernels.cone_canonical``)."""
+    signs (m, 3))`` with ``(A v)_i = signs[i] v[perm[i]]`` (``warmstart_kernels.cone_canonical``),
+    and each one's ``axial`` map (m, 3, 3) (``ConeCanonicalForm.axial``: made once here, not for
+    every problem)."""
     As = [A for A in _CUBE if (A @ s)[0] > 0.5]
     perm = np.array([[int(np.argmax(np.abs(A[i]))) for i in range(3)] for A in As], dtype=np.int64)
     signs = np.array([[A[i, pm[i]] for i in range(3)] for A, pm in zip(As, perm)])
-    return np.array(As), perm, signs
+    axial = np.array([_axial(A, pm) for A, pm in zip(As, perm)])
+    return np.array(As), perm, signs, axial
+
+
+def _axial(A, order):
+    """``det(A) A`` for a signed permutation ``A`` whose canonical axis ``i`` is body axis
+    ``order[i]`` (det: the product of its signs times the permutation's parity)."""
+    o = [int(i) for i in order]
+    det = A[0, o[0]] * A[1, o[1]] * A[2, o[2]]
+    even = (o[0], o[1], o[2]) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+    return (det if even else -det) * A
 
 
 _CANDIDATES = {}
@@ -148,20 +176,22 @@ def form_of_supported(problem: SlewProblem) -> ConeCanonicalForm:
     if key_s not in _CANDIDATES:
         s = np.asarray(problem.sensor_axis, float)
         _CANDIDATES[key_s] = _candidates(s / np.linalg.norm(s))
-    Jmax = float(problem.inertia.max())
-    umax = float(problem.torque_max.max())
     axes = np.array([c.axis for c in problem.cones], dtype=np.float64).reshape(-1, 3)
     half = np.array([c.half_angle for c in problem.cones], dtype=np.float64)
-    cA, cperm, csg = _CANDIDATES[key_s]
+    cA, cperm, csg, caxial = _CANDIDATES[key_s]
     # compiled (solvers.core.warmstart_kernels.cone_canonical): the target and cone axes in the
     # start body frame; A the candidate with the largest (J'_y - J'_z, d'_y, d'_z) to 9
     # decimals; the cones sorted by their margin to the arc from the sensor to the target; the
-    # features; the eigenaxis pointing time
-    A, x, T_ref, slots = _k.cone_canonical(
+    # features; the eigenaxis pointing time; the time unit sqrt(J_max / u_max)
+    A, x, T_ref, slots, best, tau = _k.cone_canonical(
         np.ascontiguousarray(problem.q0, dtype=np.float64), np.ascontiguousarray(problem.sensor_target, dtype=np.float64),
         np.ascontiguousarray(problem.inertia, dtype=np.float64), np.ascontiguousarray(problem.torque_max, dtype=np.float64),
         cA, cperm, csg, axes, half)
-    return ConeCanonicalForm(A, x, math.sqrt(Jmax / umax), T_ref, tuple(int(i) for i in slots))
+    cf = ConeCanonicalForm(A, x, tau, T_ref, tuple(slots.tolist()))
+    # the derived maps from the chosen candidate's tables (copies: the tables are shared)
+    order = cperm[best].copy()
+    cf.__dict__.update(order_array=order, order=order.tolist(), axial=caxial[best].copy(), slots_array=slots)
+    return cf
 
 
 def canonical_problem(x) -> SlewProblem:
