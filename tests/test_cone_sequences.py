@@ -252,11 +252,29 @@ def test_slew_evaluate_reports_the_learned_then_sequences_row_for_the_cone_famil
     assert "% verified," in open(tmp_path / "report.md").read()
 
 
+def test_a_touching_answer_starts_from_its_own_fitted_costates(monkeypatch):
+    """Held-out problem 24: the costates and multiplier fitted on the fastest sequence's path
+    (``touch_costates``) lead the touch-point solver to ``solve``'s exact 1.713352836 at the
+    first attempt (no neighbour's costates tried)."""
+    monkeypatch.setattr(cone_routes, "CONE_SEQUENCE_EXACT_BUDGET", 5.0)     # (not timed here)
+    p = problem_for(GenerationSpec("pointing-cones", seed=20261122), 24)
+    sol, _ = cone_sequences_route(p, {}, {}, budget=20.0)
+    assert sol.success and sol.exact and sol.tf == pytest.approx(1.7133528359774266, rel=1e-10)
+    assert "the switch-time answer's own fitted costates" in sol.route and "'s costates" not in sol.route
+
+
+def _without_the_fit(monkeypatch):
+    from solvers import touch_costates
+    monkeypatch.setattr(touch_costates, "touch_guess", lambda *a, **k: (None, None))
+
+
 def test_a_touching_answer_tries_the_other_neighbours_costates(monkeypatch):
-    """Held-out problem 24: the fastest sequence's own neighbour's costates do not lead the
-    touch-point solver to the extremal; another neighbour's do, at ``solve``'s exact 1.713352836
-    (on the 133 problems of the route's measurement, 48 exact extremals instead of 45)."""
+    """Held-out problem 24 without the fitted costates: the fastest sequence's own neighbour's
+    costates do not lead the touch-point solver to the extremal; another neighbour's do, at
+    ``solve``'s exact 1.713352836 (on the 133 problems of the route's measurement, 48 exact
+    extremals instead of 45)."""
     import re
+    _without_the_fit(monkeypatch)
     monkeypatch.setattr(cone_routes, "CONE_SEQUENCE_EXACT_BUDGET", 5.0)     # (not timed here)
     p = problem_for(GenerationSpec("pointing-cones", seed=20261122), 24)
     sol, _ = cone_sequences_route(p, {}, {}, budget=20.0)
@@ -267,9 +285,11 @@ def test_a_touching_answer_tries_the_other_neighbours_costates(monkeypatch):
 
 
 def test_every_attempts_work_is_counted_in_the_answer(monkeypatch):
-    """Problem 24's extremal comes from a later neighbour's costates: the Newton iterations of the
-    sequences and of every touch-point attempt, the failed ones too, are the answer's ``nit``."""
+    """Problem 24's extremal comes from a later neighbour's costates (without the fitted ones):
+    the Newton iterations of the sequences and of every touch-point attempt, the failed ones
+    too, are the answer's ``nit``."""
     from solvers import cone_touch, switch_time_opt
+    _without_the_fit(monkeypatch)
     monkeypatch.setattr(cone_routes, "CONE_SEQUENCE_EXACT_BUDGET", 5.0)
     seen = {"seq": 0, "touch": []}
     real_seq, real_touch = switch_time_opt.bang_bang_from_sequences, cone_touch.solve_touch_guess
