@@ -238,6 +238,13 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     for k, (c, _, _) in enumerate((guess.touches or []) if guess is not None else []):
         if c >= len(prob.cones):
             raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(prob.cones)} cone(s)")
+    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
+        # (every route refuses it itself, but only after the first solve of a process had
+        # loaded its kind's kernels: 0.7 s for an input error)
+        if prob.qf is None:
+            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
+                             "nothing to solve")
+        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
     if not prob.is_rest_to_rest and prob.slew_angle < 1e-12 and np.array_equal(prob.omega0, prob.omegaf):
         # (at rest every route refuses it itself; with a rate, collocation ended in IPOPT's
         # Restoration_Failed)
@@ -253,8 +260,8 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
         options["time_budget"] = budget - reserved
     if method != "eigenaxis":
         # an infeasible problem is an input error, found before any loading; the grid test
-        # (about 0.1 s for three mutually overlapping cones) is remembered, not repeated inside
-        # the time budget
+        # (about 0.1 s, for four or more cones in a loop of overlaps) is remembered, not
+        # repeated inside the time budget
         from .cone_passability import check_cones_passable
         check_cones_passable(prob)
     # the kernels are loaded (on a fresh install, compiled) before the clock starts: the time

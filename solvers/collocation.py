@@ -153,9 +153,10 @@ reproduce the trajectory on their own — ``control(t)`` does. p-norm: empty lis
 ``u_first`` is the sign of each axis's first saturated sample.
 
 Not covered: a cone set that blocks every path is rejected before solving
-(``cone_passability.cones_block_every_path``, an optimistic grid test: gaps narrower than 0.5° count as
-open and are left to IPOPT, which then reports infeasibility or converges); starts or
-targets inside a cone are rejected by ``SlewProblem`` itself.
+(``cone_passability.cones_block_every_path``: exact for up to three cones narrower than a
+hemisphere; otherwise an optimistic grid test: gaps narrower than 0.5° count as open and are
+left to IPOPT, which then reports infeasibility or converges); starts or targets inside a cone
+are rejected by ``SlewProblem`` itself.
 """
 from __future__ import annotations
 

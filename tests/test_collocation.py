@@ -17,6 +17,7 @@ from slew_env.core.dynamics import state_rhs
 from solvers.collocation import DEFAULT_TOLS, STATUS_WORSE_THAN_BASELINE, solve_collocation
 from solvers.cone_passability import _caps_cannot_separate, _grid_separates, cones_block_every_path
 from solvers.guesses import Guess
+from slew_env.core.quaternion import qfrom_two_vectors
 from reference_cases import melton
 from solvers import cone_passability
 
@@ -286,6 +287,36 @@ def test_three_cones_ringing_the_start_block_every_path():
     loose = [Cone(c.axis, half_angle_deg=25) for c in ring]
     assert _caps_cannot_separate(loose)
     assert not cones_block_every_path(SlewProblem([1, 1, 1], sensor_target=[-1, 0, 0], cones=loose))
+
+
+def _ring(half_deg, start=None, r_deg=30.0):
+    """Three cones spaced 120° around body-x's start direction, ``r_deg`` from it (pairwise
+    axes 51.32° apart at 30°); the target opposite. ``start``: another start direction."""
+    r = math.radians(r_deg)
+    ring = [Cone([math.cos(r), math.sin(r) * math.cos(a), math.sin(r) * math.sin(a)], half_angle_deg=half_deg)
+            for a in np.arange(3) * 2 * math.pi / 3]
+    q0 = [1.0, 0.0, 0.0, 0.0] if start is None else qfrom_two_vectors(np.array([1.0, 0.0, 0.0]), np.asarray(start, float))
+    return SlewProblem([1, 1, 1], q0=q0, sensor_target=[-1, 0, 0], cones=ring)
+
+
+def test_three_overlapping_cones_are_settled_exactly_without_the_grid(monkeypatch):
+    """Three pairwise-overlapping cones: sharing a point, they block nothing; sharing none, they
+    ring a hole, and a start inside it (the triangle of their axes) is cut off from a target
+    outside. Settled exactly (``_three_caps_separate``), never by the grid: where the caps
+    overlap by 0.11° the 0.5° grid sees a way through that is not there."""
+    sep = math.degrees(math.acos(0.625))                # the axes' angle at r = 30°
+    narrow = _ring(0.5 * sep + math.degrees(0.001))     # pairwise overlap 0.002 rad
+    assert not _grid_separates(narrow, 0.5)
+    monkeypatch.setattr(cone_passability, "_grid_separates", lambda *a: pytest.fail("the grid test"))
+    assert cones_block_every_path(narrow)
+    with pytest.raises(ValueError, match=r"^cones: the 3 keep-out cone\(s\) separate the start and target"):
+        solvers.solve(narrow, time_budget=1e-3)
+    # 31° cones 30° off body x all contain that direction (a shared point): nothing is cut off
+    # (the start moved to +z, outside them)
+    assert not cones_block_every_path(_ring(31.0, start=[0.0, 0.0, 1.0]))
+    # the ring of 28° cones: a start outside it, on the target's side, is not cut off
+    assert cones_block_every_path(_ring(28.0))
+    assert not cones_block_every_path(_ring(28.0, start=[0.0, -0.6, 0.8]))
 
 
 def test_quick_separation_test_agrees_with_the_grid():
