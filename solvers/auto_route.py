@@ -121,7 +121,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
         # and is flown by its switch times; collocation's answer is not
         bang = cone_routes.bang_bang_cones(prob, col, options, budget - spent())
         if bang is not None:
-            bang.route = f"auto: collocation ({col.route}; {col.wall_time:.3g} s; no exact extremal near it) → {bang.route}"
+            bang.route = (f"auto: collocation ({col.route}; {col.wall_time:.3g} s; its costates reached no exact "
+                          f"extremal) → {bang.route}")
             # where its path touches a cone, the touch-point extremal from the costates fitted on it
             ex, why = cone_routes.exact_from_own_costates(
                 prob, bang, options, min(cone_routes.OWN_COSTATES_BUDGET, budget - spent()))

@@ -56,7 +56,9 @@ def _three_caps_separate(problem) -> "bool | None":
     separated exactly when one of them is inside the triangle.
 
     The caps share a point when one of the candidates does: an axis (a cap inside the other
-    two), or a point where two boundary circles cross (a vertex of the intersection)."""
+    two), or a point where two boundary circles cross (a vertex of the intersection). A cone's
+    inside is open (a margin of 0 is allowed): two tangent caps leave a way through the point
+    they share, so the ring is closed only where every pair overlaps."""
     cones = problem.cones
     if len(cones) != 3 or any(c.half_angle >= 0.5 * math.pi for c in cones):
         return None
@@ -64,8 +66,15 @@ def _three_caps_separate(problem) -> "bool | None":
     cos_a = [math.cos(c.half_angle) for c in cones]
     for i in range(3):
         for j in range(i + 1, 3):
-            if math.acos(float(np.clip(a[i] @ a[j], -1.0, 1.0))) > cones[i].half_angle + cones[j].half_angle + 1e-12:
+            if float(np.linalg.norm(np.cross(a[i], a[j]))) < 1e-6:
+                return None     # (nearly) the same axis: their circles' crossings are ill-conditioned
+            overlap = cones[i].half_angle + cones[j].half_angle - math.acos(float(np.clip(a[i] @ a[j], -1.0, 1.0)))
+            if overlap < -1e-12:
                 return None     # not a loop of overlapping caps (_caps_cannot_separate's case)
+            if overlap <= 1e-12:
+                # tangent caps: a path through the point they share keeps a margin of 0, which is
+                # allowed (a keep-out cone's inside is open), so the ring is not closed there
+                return False
     vol = float(a[0] @ np.cross(a[1], a[2]))
     if abs(vol) < 1e-9:
         return None             # axes on one great circle: no proper triangle
@@ -77,13 +86,10 @@ def _three_caps_separate(problem) -> "bool | None":
         for j in range(i + 1, 3):
             # x·a_i = cos α_i, x·a_j = cos α_j, |x| = 1: x = u + t n, u in the plane of a_i, a_j
             n = np.cross(a[i], a[j])
-            nn = float(n @ n)
-            if nn < 1e-18:
-                continue
+            nn = float(n @ n)           # = 1 - (a_i·a_j)², accurate for near axes too; ≥ 1e-12 above
             g = float(a[i] @ a[j])
-            det = 1.0 - g * g
-            ci = (cos_a[i] - g * cos_a[j]) / det
-            cj = (cos_a[j] - g * cos_a[i]) / det
+            ci = (cos_a[i] - g * cos_a[j]) / nn
+            cj = (cos_a[j] - g * cos_a[i]) / nn
             u = ci * a[i] + cj * a[j]
             rest = 1.0 - float(u @ u)
             if rest < 0.0:

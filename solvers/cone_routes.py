@@ -453,7 +453,8 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
         ex = None
         # first the answer's own costates and multipliers, fitted on its path (touch_costates),
         # then each neighbour's costates with the answer's instants and touches
-        own, _ = touch_guess(prob, bang, touches)
+        own, fit = touch_guess(prob, bang, touches)
+        nfev += fit["nfev"]
         seeds = ([own] if own is not None else []) + list(neighbours)
         for seed in seeds:
             left = budget - (time.perf_counter() - t0)
@@ -472,10 +473,11 @@ def exact_near_bang_bang(prob, bang, kkt_guess, neighbours, options, budget):
             if ex.success and ex.tf <= bang.tf * (1.0 + 1e-6):
                 break           # (a slower extremal is another local optimum: the next costates)
         if ex is None:
-            return None, (0, 0), "no time left"
+            return None, (nit, nfev), "no time left"
         work = (nit, nfev)
         if not ex.success or ex.tf > bang.tf * (1.0 + 1e-6):
-            what = ("its own fitted costates and " if own is not None else "") + f"{tried - (own is not None)} neighbours' costates"
+            what = (("its own fitted costates and " if own is not None else f"(no fitted costates: {fit['reason']}) ")
+                    + f"{tried - (own is not None)} neighbours' costates")
             ex.message = f"{what} tried; the last: {ex.message}"
     if not ex.success:
         return None, work, ex.message
@@ -522,8 +524,10 @@ def bang_bang_cones(prob, col, options, left):
 
 
 # s: the touch-point attempt at a switch-time answer from its own fitted costates (converging
-# ones took 11–13 ms on bench_cones' seed 0)
+# ones took 11–13 ms on bench_cones' seed 0), and the least time left for one: its replay, fit
+# and verification run outside the touch solver's deadline (13 ms on a 5 ms budget, a review)
 OWN_COSTATES_BUDGET = 0.1
+OWN_COSTATES_MIN_LEFT = 0.02
 
 
 def exact_from_own_costates(prob, bang, options, budget=OWN_COSTATES_BUDGET):
@@ -532,20 +536,26 @@ def exact_from_own_costates(prob, bang, options, budget=OWN_COSTATES_BUDGET):
     path (``touch_costates``), without smoothing: ``(extremal, "")`` if one is certified no slower
     than ``bang`` (by 1e-6) within ``budget`` s, with ``bang``'s work and route before its own;
     else ``(None, why)`` with the attempt's work counted in ``bang``, or ``(None, None)`` where
-    no attempt is made (less than ``CONE_EXACT_MIN_LEFT`` left, no touch on its path). On ``bench_cones``' 30
-    problems of seed 0 it turned 2 of ``auto``'s 7 switch-time answers into exact extremals."""
+    no attempt is made (less than ``OWN_COSTATES_MIN_LEFT`` left, no touch on its path). On
+    ``bench_cones``' 30 problems of seed 0 it turned 2 of ``auto``'s 7 switch-time answers into
+    exact extremals."""
     from .cone_touch import solve_touch_guess
     from .touch_costates import touch_guess
-    if budget < CONE_EXACT_MIN_LEFT or not prob.cones or bang.switch_times is None:
+    t0 = time.perf_counter()
+    if budget < OWN_COSTATES_MIN_LEFT or not prob.cones or bang.switch_times is None:
         return None, None
     touches = touches_on_path(prob, bang)
     if not touches:
         return None, None
     g, info = touch_guess(prob, bang, touches)
+    bang.nfev += info["nfev"]
     if g is None:
-        return None, ("a fitted touch multiplier is negative" if info else "its switches do not fix the costates")
-    ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=budget, smoothing=False,
-                           deadline=time.perf_counter() + budget)
+        return None, info["reason"]
+    left = budget - (time.perf_counter() - t0)
+    if left < CONE_EXACT_MIN_LEFT:
+        return None, "no time left after the fit"
+    ex = solve_touch_guess(prob, g, tols=options.get("tols"), time_budget=left, smoothing=False,
+                           deadline=time.perf_counter() + left)
     if not ex.success or ex.tf > bang.tf * (1.0 + 1e-6):
         bang.nit += int(ex.nit)
         bang.nfev += int(ex.nfev)

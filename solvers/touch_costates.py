@@ -45,13 +45,14 @@ from .switch_time import propagate_sequence
 RANK_TOL = 1e-10
 
 
-def touch_costates(problem, switch_times, u_first, tf, touches) -> Optional[Tuple[np.ndarray, np.ndarray, dict]]:
+def touch_costates(problem, switch_times, u_first, tf, touches) -> Tuple[Optional[np.ndarray], Optional[np.ndarray], dict]:
     """``(costate0, nu, info)`` of the bang-bang path ``(switch_times, u_first, tf)`` (problem
     units) of ``problem`` (per-axis bound, with cones) touching its cones at ``touches``
     (``[(cone, instant, ·)]``, instants in problem units): ``costate0`` in the package's gauge
     and scale (``H = -1``), ``nu`` the touch multipliers in the scale of ``costate0`` (what
     ``Guess.touches`` holds), ``info`` the least-squares fit (``rows``, ``unknowns``, ``residual``,
-    ``condition``). ``None`` where the conditions do not fix them (rank) or a propagation fails."""
+    ``condition``) and the propagations it took (``nfev``). ``(None, None, info)`` with
+    ``info["reason"]`` where the conditions do not fix them (rank) or a propagation fails."""
     bvp = AttitudeBVP(problem.replace(cones=()))
     bvp.set_mode("bang")
     tau = bvp.tau
@@ -61,11 +62,18 @@ def touch_costates(problem, switch_times, u_first, tf, touches) -> Optional[Tupl
     o = np.argsort(times, kind="stable")
     axes, times = axes[o], times[o]
     signs0 = np.where(np.asarray(u_first, float) < 0, -1.0, 1.0)
+    # the control on the first arc: a switch at (or, clipped, before) 0 flips its axis there, as
+    # the propagation does (switch-time answers keep their instants in [0, tf])
+    signs_start = signs0.copy()
+    for a, t in zip(axes, times):
+        if t <= 0.0:
+            signs_start[a] = -signs_start[a]
     y0 = np.zeros(NY)
     y0[0:4], y0[4:7] = bvp.q0, bvp.w0
     s_b = np.asarray(problem.sensor_axis, float) / np.linalg.norm(problem.sensor_axis)
     K = len(touches)
     tc = [float(t) / tau for _, t, _ in touches]
+    info = {"nfev": 0}
 
     def transition(t):
         """``(y(t), Φ(t))``: the path's state and 7×7 transition over ``[0, t]``."""
@@ -73,6 +81,7 @@ def touch_costates(problem, switch_times, u_first, tf, touches) -> Optional[Tupl
         out = propagate_sequence(bvp, times[before], axes[before], signs0, t, y0, True)
         if out is None:
             raise FloatingPointError
+        info["nfev"] += int(out[5])
         return out[0], out[4]
 
     try:
@@ -98,14 +107,14 @@ def touch_costates(problem, switch_times, u_first, tf, touches) -> Optional[Tupl
         Jinv = 1.0 / np.asarray(bvp.J, float)
         for a, t in zip(axes, times):
             if not 0.0 < t < T:
-                continue        # (an instant at an end switches nothing there)
+                continue        # (an instant at an end switches nothing inside)
             _, L = costate_map(t)
             rows.append(Jinv[a] * L[4 + a])
             rhs.append(0.0)
         # H(0) = λ(0) · f(x(0), u(0⁺)) = -1
         w0 = np.asarray(bvp.w0, float)
         Jv = np.asarray(bvp.J, float)
-        u0 = signs0 * np.asarray(bvp.umax, float)
+        u0 = signs_start * np.asarray(bvp.umax, float)
         f0 = np.concatenate([0.5 * qmul(bvp.q0, np.concatenate([[0.0], w0])),
                              (u0 - np.cross(w0, Jv * w0)) * Jinv])
         rows.append(np.concatenate([f0, np.zeros(K)]))
@@ -118,36 +127,36 @@ def touch_costates(problem, switch_times, u_first, tf, touches) -> Optional[Tupl
             rows.append(roll @ LT[0:4])
             rhs.append(0.0)
     except (FloatingPointError, np.linalg.LinAlgError):
-        return None
+        return None, None, dict(info, reason="a propagation along its path failed")
     A, b = np.array(rows), np.array(rhs)
     x, _, rank, sv = np.linalg.lstsq(A, b, rcond=None)
+    info.update(rows=int(A.shape[0]), unknowns=7 + K)
     if not (np.all(np.isfinite(x)) and rank == 7 + K and sv[-1] > RANK_TOL * sv[0]):
-        return None
+        return None, None, dict(info, reason=f"its {A.shape[0] - 2 - (problem.qf is None)} switches and "
+                                             f"{K} touch(es) do not fix the costates")
     lam0, nu = x[:7], x[7:]
-    info = dict(rows=int(A.shape[0]), unknowns=7 + K, residual=float(np.linalg.norm(A @ x - b)),
-                condition=float(sv[0] / sv[-1]))
+    info.update(residual=float(np.linalg.norm(A @ x - b)), condition=float(sv[0] / sv[-1]))
     # problem units (``guesses.from_nondim``): λq scales with τ, λω with τ², ν with τ (λq's jump)
     mu = qmul(qconj(bvp.q0), lam0[0:4])[1:4]
     lq = qmul(bvp.q0, np.concatenate([[0.0], mu])) * tau
     costate0 = np.concatenate([lq, lam0[4:7] * tau ** 2])
     if not math.isfinite(float(np.linalg.norm(costate0))) or not np.any(costate0):
-        return None
+        return None, None, dict(info, reason="the fitted costates are zero or not finite")
     return costate0, nu * tau, info
 
 
 def touch_guess(problem, sol, touches, source="the switch-time answer's own fitted"):
     """``(guess, info)``: a ``Guess`` for ``cone_touch.solve_touch_guess`` at the bang-bang
     answer ``sol`` (its instants, ``tf``, first signs) with ``touches`` and the costates and
-    multipliers of ``touch_costates``, and that fit's ``info``; ``(None, None)`` where those are
-    not fixed, ``(None, info)`` where a multiplier comes out negative."""
+    multipliers of ``touch_costates``, and that fit's ``info`` (its ``nfev`` to be counted by the
+    caller); ``(None, info)`` with ``info["reason"]`` where there is none."""
     from .guesses import Guess
-    out = touch_costates(problem, sol.switch_times, sol.u_first, sol.tf, touches)
-    if out is None:
-        return None, None
-    costate0, nu, info = out
+    costate0, nu, info = touch_costates(problem, sol.switch_times, sol.u_first, sol.tf, touches)
+    if costate0 is None:
+        return None, info
     if np.any(nu < 0.0):
         # a touch that pulls the path into the cone: not a touch extremal with this sequence
-        return None, dict(info, negative_multiplier=True)
+        return None, dict(info, negative_multiplier=True, reason="a fitted touch multiplier is negative")
     g = Guess(costate0, sol.tf, [np.asarray(x, float) for x in sol.switch_times], sol.u_first, source=source,
               touches=[(c, t, float(n)) for (c, t, _), n in zip(touches, nu)])
     return g, info

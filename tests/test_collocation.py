@@ -317,6 +317,20 @@ def test_three_overlapping_cones_are_settled_exactly_without_the_grid(monkeypatc
     # the ring of 28° cones: a start outside it, on the target's side, is not cut off
     assert cones_block_every_path(_ring(28.0))
     assert not cones_block_every_path(_ring(28.0, start=[0.0, -0.6, 0.8]))
+    # pairwise tangent cones leave a way through each point they share (a margin of 0 is
+    # allowed): not blocked (a review found them refused as infeasible)
+    assert not cones_block_every_path(_ring(0.5 * sep))
+
+
+def test_near_coincident_cone_axes_go_to_the_grid_without_an_error():
+    """Two cone axes 1e-8 rad apart made the crossing points' denominator round to 0
+    (ZeroDivisionError out of solve, a review): such a set is left to the grid."""
+    x, z = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    cones = [Cone(x, half_angle=0.9), Cone([math.cos(1e-8), math.sin(1e-8), 0.0], half_angle=0.9), Cone(z, half_angle=0.9)]
+    p = SlewProblem([1, 1, 1], q0=qfrom_two_vectors(x, np.array([0.0, -1.0, 0.0])), sensor_target=[-0.6, 0.8, 0.0],
+                    cones=cones)
+    assert cone_passability._three_caps_separate(p) is None
+    assert cones_block_every_path(p) == _grid_separates(p, 0.5)
 
 
 def test_quick_separation_test_agrees_with_the_grid():
