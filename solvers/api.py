@@ -462,6 +462,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         short = f"time budget {budget:.3g} s, under the collocation route's {cone_routes.CONE_LEARNED_FIRST_BELOW:g} s"
         warm_opts = dict(options)
         warm_opts.setdefault("warm_budget", min(cone_routes.CONE_WARM_BUDGET, cone_routes.short_learned_budget(budget)))
+        warm_opts["_cone_search_more"] = cone_routes.CONE_SHORT_SEARCH_MORE
         warm, info, _ = warm_routes.try_warm_start(prob, method, "pointing-cones", warm_opts)
         if warm is not None and warm.success:
             warm.route = f"{short}: {warm.route}"

@@ -402,11 +402,12 @@ def try_warm_start(prob, method, warm_start, options, split=False):
     ind_method = "multiple-shooting" if method == "multiple-shooting" else "indirect"
     total = float(options.get("time_budget", 20.0))
     budget = min(float(options.get("warm_budget", cone_routes.CONE_WARM_BUDGET if prob.cones else WARM_BUDGET)), total)
-    opts = {k: v for k, v in options.items() if k != "warm_budget"}
+    opts = {k: v for k, v in options.items() if k not in ("warm_budget", "_cone_search_more")}
     skipped = []
     if prob.cones:
         sol = cone_routes.solve_learned_cones(prob, g, opts, budget, errors=skipped,
-                                              rank=bool(getattr(model, "RANKS_CANDIDATES", False)))
+                                              rank=bool(getattr(model, "RANKS_CANDIDATES", False)),
+                                              more=float(options.get("_cone_search_more", 1.0)))
     else:
         sol = multistart.guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
