@@ -260,7 +260,10 @@ def other_sides_first(prob, first, cands) -> list:
     candidates without switch times in the middle."""
     from .clearance import sensor_directions
     from .verify import replay_path
-    ref = cone_windings(prob, sensor_directions(np.asarray(first.q), prob.sensor_axis))
+    q = getattr(first, "q", None)
+    if q is None or len(q) < 2 or not prob.cones:
+        return cands        # (no dense path to compare with: the order stays)
+    ref = cone_windings(prob, sensor_directions(np.asarray(q, float), prob.sensor_axis))
     other, unknown, same = [], [], []
     for c in cands:
         if c.switch_times is None or c.u_first is None:
