@@ -190,7 +190,7 @@ def solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=Fa
     cands = g.iter_all(errors=skipped)
     if rank and CONE_RANK_CANDIDATES:
         cands = ranked_by_starting_residual(prob, list(cands), deadline=t0 + CONE_RANK_SHARE * budget)
-    best, t_first, after = None, None, 0
+    best, t_first, after, verified_tf = None, None, 0, set()
     queue = iter(cands)
     while True:
         cand = next(queue, None)
@@ -198,27 +198,43 @@ def solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=Fa
             break
         left = min(budget - (time.perf_counter() - t0), CONE_CANDIDATE_CAP if cap is None else cap)
         if best is not None:
-            left = min(left, more * t_first - (time.perf_counter() - t0))
+            # the search after the first answer: within more · t₁ and the budget, each attempt
+            # with a hard deadline, none started with less than a converging attempt takes
+            now = time.perf_counter() - t0
+            left = min(left, more * t_first - now, budget - CONE_SEARCH_RESERVE - now)
+            if left < CONE_SEARCH_MIN_LEFT:
+                break
         if left <= 0.0:
             break
         tried += 1
         after += best is not None
-        if cand.touches:
-            sol = solve_touch_guess(prob, cand, tols=options.get("tols"), time_budget=left, smoothing=False)
-        else:
-            sol = multistart.guess_alone(prob.replace(cones=[]), cand, options, left, with_candidates=False)
-            if sol.success and not certify_clear(prob, sol):
-                sol.success, sol.status = False, STATUS_VERIFICATION_FAILED
-                sol.message = (f"the extremal without cones enters a cone (certified clearance "
-                               f"{sol.verification['cone_clearance']['value']:.3g} rad)")
-            sol.problem = prob
+        try:
+            if cand.touches:
+                sol = solve_touch_guess(prob, cand, tols=options.get("tols"), time_budget=left, smoothing=False,
+                                        **({"deadline": time.perf_counter() + left} if best is not None else {}))
+            else:
+                sol = multistart.guess_alone(prob.replace(cones=[]), cand, options, left, with_candidates=False)
+                if sol.success and not certify_clear(prob, sol):
+                    sol.success, sol.status = False, STATUS_VERIFICATION_FAILED
+                    sol.message = (f"the extremal without cones enters a cone (certified clearance "
+                                   f"{sol.verification['cone_clearance']['value']:.3g} rad)")
+                sol.problem = prob
+        except Exception as e:      # noqa: BLE001 - after a verified answer, a bad candidate is skipped
+            if best is None:
+                raise
+            skipped.append(f"candidate {tried}: {type(e).__name__}: {e}"[:300])
+            continue
         nit, nfev = nit + sol.nit, nfev + sol.nfev
         last = sol
         if sol.success:
+            verified_tf.add(round(float(sol.tf), 9))
             if best is None:
                 best, t_first = sol, time.perf_counter() - t0
-                if more > 1.0 and CONE_OTHER_SIDES_FIRST:
-                    queue = iter(other_sides_first(prob, sol, list(queue)))
+                if more > 1.0 and CONE_OTHER_SIDES_FIRST and isinstance(cands, list):
+                    # (a ranked list: its candidates are made already; the reordering's replays
+                    # take 2-4 ms, within what the search may spend)
+                    queue = iter(other_sides_first(prob, sol, list(queue),
+                                                   deadline=t0 + min(budget - CONE_SEARCH_RESERVE, more * t_first)))
             elif sol.tf < best.tf * (1.0 - 1e-9):
                 best = sol
             if not more > 1.0:
@@ -226,6 +242,7 @@ def solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=Fa
     if best is not None:
         if after:
             best.route += f"; {after} more candidate(s) tried after the first verified answer, the fastest kept"
+        best.candidates_tf = sorted(verified_tf | {round(float(t), 9) for t in (best.candidates_tf or [])})
         last = best
     if last is None:
         why = f"no candidate could be made ({'; '.join(skipped)[:300]})" if skipped else "no time left for the guess"
@@ -240,6 +257,12 @@ def solve_learned_cones(prob, g, options, budget, cap=None, errors=None, rank=Fa
 # (``other_sides_first``): held-out problems 0-299 at 0.3 s (runs/s41/sides_ab.py, with and
 # without, alternating), 8 faster answers (by 2e-4 to 7 %), none slower, the same time
 CONE_OTHER_SIDES_FIRST = True
+# s: no candidate of the search after the first answer starts with less left (a converging
+# attempt takes 8 ms or more; a review found 1 ms attempts ending 0.3-1.5 ms late)
+CONE_SEARCH_MIN_LEFT = 0.008
+# s: and it ends this long before the learned stage's budget, which may be the whole solve's:
+# what follows an answer (its baseline, the records) took 2-4 ms past a 0.1 s budget (a review)
+CONE_SEARCH_RESERVE = 0.006
 
 
 def cone_windings(prob, directions) -> np.ndarray:
@@ -254,10 +277,11 @@ def cone_windings(prob, directions) -> np.ndarray:
     return out
 
 
-def other_sides_first(prob, first, cands) -> list:
+def other_sides_first(prob, first, cands, deadline=math.inf) -> list:
     """``cands`` with those whose switch times, flown alone (an RK4 replay of 400 steps), pass
     some cone on another side than the answer ``first`` moved to the front (their order kept);
-    candidates without switch times in the middle."""
+    candidates without switch times in the middle, and those not reached by ``deadline``
+    (``time.perf_counter()``) at the end, in their order."""
     from .clearance import sensor_directions
     from .verify import replay_path
     q = getattr(first, "q", None)
@@ -265,7 +289,9 @@ def other_sides_first(prob, first, cands) -> list:
         return cands        # (no dense path to compare with: the order stays)
     ref = cone_windings(prob, sensor_directions(np.asarray(q, float), prob.sensor_axis))
     other, unknown, same = [], [], []
-    for c in cands:
+    for k, c in enumerate(cands):
+        if time.perf_counter() > deadline:
+            return other + unknown + same + list(cands[k:])
         if c.switch_times is None or c.u_first is None:
             unknown.append(c)
             continue

@@ -193,3 +193,68 @@ def test_after_the_first_answer_candidates_on_other_sides_go_first():
         other.append(bool(np.any(np.abs(windings(sensor_directions(x[:, 0:4], p.sensor_axis)) - ref) > np.pi)))
     k = other.index(False)
     assert 0 < k < len(other) and not any(other[k:])      # other sides first, then the same side
+
+
+def test_only_the_short_budget_branch_searches_on_and_reorders(monkeypatch):
+    """``solve(p, time_budget < 0.4 s)`` asks the learned stage to search on (``more`` =
+    ``CONE_SHORT_SEARCH_MORE``), and the search reorders the remaining candidates by side; the
+    opt-in first guess (``warm_start="pointing-cones"``) stops at its first answer. With the
+    switch off, no reordering; a first answer without a dense path keeps the order."""
+    from solvers import cone_routes, solve
+    from training.generate import GenerationSpec, problem_for
+    from slew_env import SlewProblem
+    p = SlewProblem.from_dict(problem_for(GenerationSpec("pointing-cones", seed=20261122), 109))
+    seen, reordered = [], []
+    real, real_osf = cone_routes.solve_learned_cones, cone_routes.other_sides_first
+
+    def spy(*a, **k):
+        seen.append(k.get("more", 1.0))
+        return real(*a, **k)
+
+    def spy_osf(*a, **k):
+        reordered.append(True)
+        return real_osf(*a, **k)
+    monkeypatch.setattr(cone_routes, "solve_learned_cones", spy)
+    monkeypatch.setattr(cone_routes, "other_sides_first", spy_osf)
+    solve(p, time_budget=0.3)
+    assert seen[0] == cone_routes.CONE_SHORT_SEARCH_MORE > 1.0 and reordered
+    seen.clear(), reordered.clear()
+    solve(p, warm_start="pointing-cones", time_budget=2.0)
+    assert seen and seen[0] == 1.0 and not reordered
+    seen.clear()
+    monkeypatch.setattr(cone_routes, "CONE_OTHER_SIDES_FIRST", False)
+    solve(p, time_budget=0.3)
+    assert seen[0] > 1.0 and not reordered
+
+    class NoPath:
+        q = None
+    cands = [1, 2, 3]
+    assert real_osf(p, NoPath(), cands) == cands and real_osf(p, NoPath(), cands) is cands
+
+
+def test_the_search_keeps_every_verified_time_and_skips_a_candidate_that_raises():
+    """After the first verified answer the search keeps going: every verified final time is in
+    ``candidates_tf``, and a later candidate that raises (a touch on a cone the problem lacks)
+    is skipped and recorded, not fatal (a review lost the first answer to it)."""
+    from solvers import cone_routes
+    from solvers.guesses import Guess
+    from solvers.warmstart import default_cone_model
+    from training.generate import GenerationSpec, problem_for
+    from slew_env import SlewProblem
+    p = SlewProblem.from_dict(problem_for(GenerationSpec("pointing-cones", seed=20261122), 149))
+    best = cone_routes.solve_learned_cones(p, default_cone_model().guess(p), {}, 20.0, cap=5.0, rank=True, more=1e9)
+    assert round(best.tf, 9) in best.candidates_tf and round(1.5622205922845647, 9) in best.candidates_tf
+    assert min(best.candidates_tf) == round(best.tf, 9)
+    # a guess that converges at once (an extremal's own costates and touches), then a bad one
+    tm = best.verification["touch_multipliers"]
+    touches = list(zip(tm["cones"], tm["times"], tm["multipliers"]))
+    g = Guess(best.costate0, best.tf, best.switch_times, best.u_first, source="its own answer", touches=touches)
+    g.candidates = [Guess(best.costate0, best.tf, best.switch_times, best.u_first, source="bad",
+                          touches=[(len(p.cones) + 4, 0.5 * best.tf, 1.0)])]
+    # (alone, before any answer, the bad candidate raises, as it always did)
+    with pytest.raises(ValueError, match="cone index"):
+        cone_routes.solve_learned_cones(p, g.candidates[0], {}, 20.0, cap=5.0, more=1e9)
+    errors = []
+    out = cone_routes.solve_learned_cones(p, g, {}, 20.0, cap=5.0, errors=errors, more=1e9)
+    assert out.success and out.tf == pytest.approx(best.tf, rel=1e-9) and out.n_candidates == 2
+    assert len(errors) == 1 and "ValueError" in errors[0] and "cone index" in errors[0]
