@@ -238,13 +238,9 @@ def _solve(problem, method, guess, warm_start, **options) -> SlewSolution:
     for k, (c, _, _) in enumerate((guess.touches or []) if guess is not None else []):
         if c >= len(prob.cones):
             raise ValueError(f"guess.touches[{k}]: cone index {c}, but the problem has {len(prob.cones)} cone(s)")
-    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
-        # (every route refuses it itself, but only after the first solve of a process had
-        # loaded its kind's kernels: 0.7 s for an input error)
-        if prob.qf is None:
-            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
-                             "nothing to solve")
-        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
+    # (every route refuses it itself, but only after the first solve of a process had loaded its
+    # kind's kernels: 0.7 s for an input error)
+    multistart.refuse_zero_slew(prob)
     if not prob.is_rest_to_rest and prob.slew_angle < 1e-12 and np.array_equal(prob.omega0, prob.omegaf):
         # (at rest every route refuses it itself; with a rate, collocation ended in IPOPT's
         # Restoration_Failed)

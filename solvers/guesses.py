@@ -237,11 +237,17 @@ class Guess:
         return (z / n, self.tf / bvp.tau, n) if with_norm else (z / n, self.tf / bvp.tau)
 
 
-def from_nondim(bvp, z, T, source, switch_times=None, u_first=None):
+def costate_from_nondim(bvp, z) -> np.ndarray:
+    """The costates ``[λq, λω]`` in problem units of the solver's parameters ``z = [μ, λω(0)]``
+    (``λq(0) = q0 ⊗ [0, μ]``, scaled by τ; ``λω`` by τ²): ``Guess.to_nondim`` undone, unnormalised."""
     lq = qmul(bvp.q0, np.array([0.0, z[0], z[1], z[2]])) * bvp.tau
     lw = np.asarray(z[3:6]) * bvp.tau ** 2
+    return np.concatenate([lq, lw])
+
+
+def from_nondim(bvp, z, T, source, switch_times=None, u_first=None):
     st = None if switch_times is None else [np.asarray(s) * bvp.tau for s in switch_times]
-    return Guess(np.concatenate([lq, lw]), T * bvp.tau, st, u_first, source)
+    return Guess(costate_from_nondim(bvp, z), T * bvp.tau, st, u_first, source)
 
 
 def eigenaxis_axis_angle(problem):

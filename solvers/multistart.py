@@ -193,6 +193,15 @@ def exact_from_kkt(prob, bang, kkt_guess, options, budget, prefix) -> Optional[S
     return None
 
 
+def refuse_zero_slew(prob) -> None:
+    """``ValueError`` (naming the target's field) for a slew at rest whose target is its start."""
+    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
+        if prob.qf is None:
+            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
+                             "nothing to solve")
+        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
+
+
 def solve_indirect(prob, method, guess, first_verified=False, **options) -> SlewSolution:
     """The indirect multi-start. ``first_verified``: stop at the first verified extremal that
     is not slower than the eigenaxis slew (a warm start's candidates, best first)."""
@@ -200,11 +209,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
     if prob.cones:
         raise ValueError("cones: keep-out cones are not supported by the indirect solvers yet "
                          f"({len(prob.cones)} given); use method='auto' or 'collocation'")
-    if prob.is_rest_to_rest and prob.slew_angle < 1e-12:
-        if prob.qf is None:
-            raise ValueError("sensor_target: the sensor already points at the target (zero slew at rest); "
-                             "nothing to solve")
-        raise ValueError("qf: the target equals the start (zero slew at rest); nothing to solve")
+    refuse_zero_slew(prob)
     segments = int(options.get("segments", 4 if method == "multiple-shooting" else 1))
     if segments < 1:
         raise ValueError(f"segments: must be a positive integer, got {segments}")

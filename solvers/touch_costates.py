@@ -31,13 +31,14 @@ where the neighbours' costates had converged on none.
 from __future__ import annotations
 
 import math
-from typing import List, Optional, Tuple
+from typing import Optional, Tuple
 
 import numpy as np
 
 from slew_env.core.quaternion import qconj, qmul
 from .attitude_bvp import NY, AttitudeBVP
 from .core.cone_penalty import cone_matrix
+from .guesses import Guess, costate_from_nondim
 from .switch_time import propagate_sequence
 
 # a system whose smallest singular value is below this times its largest does not fix the
@@ -136,10 +137,10 @@ def touch_costates(problem, switch_times, u_first, tf, touches) -> Tuple[Optiona
                                              f"{K} touch(es) do not fix the costates")
     lam0, nu = x[:7], x[7:]
     info.update(residual=float(np.linalg.norm(A @ x - b)), condition=float(sv[0] / sv[-1]))
-    # problem units (``guesses.from_nondim``): λq scales with τ, λω with τ², ν with τ (λq's jump)
+    # problem units (``guesses.costate_from_nondim``): λq scales with τ, λω with τ², ν with τ
+    # (λq's jump); λq(0) enters through its parameters μ, in the gauge λq(0)·q(0) = 0
     mu = qmul(qconj(bvp.q0), lam0[0:4])[1:4]
-    lq = qmul(bvp.q0, np.concatenate([[0.0], mu])) * tau
-    costate0 = np.concatenate([lq, lam0[4:7] * tau ** 2])
+    costate0 = costate_from_nondim(bvp, np.concatenate([mu, lam0[4:7]]))
     if not math.isfinite(float(np.linalg.norm(costate0))) or not np.any(costate0):
         return None, None, dict(info, reason="the fitted costates are zero or not finite")
     return costate0, nu * tau, info
@@ -150,7 +151,6 @@ def touch_guess(problem, sol, touches, source="the switch-time answer's own fitt
     answer ``sol`` (its instants, ``tf``, first signs) with ``touches`` and the costates and
     multipliers of ``touch_costates``, and that fit's ``info`` (its ``nfev`` to be counted by the
     caller); ``(None, info)`` with ``info["reason"]`` where there is none."""
-    from .guesses import Guess
     costate0, nu, info = touch_costates(problem, sol.switch_times, sol.u_first, sol.tf, touches)
     if costate0 is None:
         return None, info
