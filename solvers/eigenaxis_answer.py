@@ -240,23 +240,27 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
                         verification=checks, problem=target, _control=leg.control)
 
 
-def eigenaxis_unless_faster(prob, tf):
+def eigenaxis_unless_faster(prob, tf, n_grid=None):
     """``(baseline, eig)`` for a rest-to-rest, full-attitude, per-axis problem and a final time
     ``tf``: if ``tf`` is below the fine-grid eigenaxis time (problem units) by the margin
     ``GRID_MARGIN``, it is faster than the eigenaxis slew, and ``(grid time, None)``;
-    else the slew itself is planned (~15 ms): ``(grid time, eigenaxis_answer)``."""
+    else the slew itself is planned (~15 ms; on ``n_grid`` steps if given):
+    ``(grid time, eigenaxis_answer)``."""
     bvp = AttitudeBVP(prob)
     grid = eigenaxis_time(bvp.ref_problem, n_grid=1000)
     if tf < grid * (1.0 - GRID_MARGIN):
         return grid, None
-    return grid, eigenaxis_answer(prob)
+    return grid, eigenaxis_answer(prob, n_grid=n_grid)
 
 
-def no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
+def no_slower_than_eigenaxis(prob, sol, t0, n_grid=None) -> SlewSolution:
     """``auto``'s answer to a rest-to-rest full-attitude problem is never slower than the
     eigenaxis slew: an approximate (collocation) answer that is not faster — small slews,
     where the two agree to first order and collocation cannot resolve the difference — is
-    replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay)."""
+    replaced by the eigenaxis slew itself (``eigenaxis_answer``, verified by its replay).
+    ``n_grid``: the eigenaxis profile's steps (``solve`` under a time budget: as many as the time
+    left pays for; a coarser profile is slower, so the answer is compared with a slew that is
+    flown as planned, not with the finest one)."""
     if not sol.success or sol.exact or _not_compared(prob) is not None:
         return sol
     # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
@@ -266,9 +270,9 @@ def no_slower_than_eigenaxis(prob, sol, t0) -> SlewSolution:
     if not math.isinf(prob.torque_norm):
         if not (sol.tf >= sol.baseline_tf * (1.0 - 0.03)):
             return sol
-        eig = eigenaxis_answer(prob)
+        eig = eigenaxis_answer(prob, n_grid=n_grid)
     else:
-        _, eig = eigenaxis_unless_faster(prob, sol.tf)
+        _, eig = eigenaxis_unless_faster(prob, sol.tf, n_grid=n_grid)
     if eig is None or not eig.success or not eig.tf < sol.tf:
         return sol
     eig.route = (f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "

@@ -51,6 +51,30 @@ NEIGHBOUR_SEQUENCES = 8
 NEIGHBOUR_SEQUENCE_BUDGET = 0.6
 NEIGHBOUR_KKT_BUDGET = 0.1
 
+# s: the singular table and the nearest sequences start only with this much of the time budget
+# left: each optimises at least its first sequence (about 9 ms), and the default route after them
+# needs far more. With less, ``solve`` reports the budget spent by the learned stage (a 0.05 s
+# budget had ended 8-10 ms late where the learned candidates used it all, an outside replay, session 42)
+TABLE_MIN_LEFT = 0.01
+# s: under a budget that the learned candidates would otherwise use to the end, what they leave
+# for the singular table where its neighbours say it answers (``_table_may_answer``)
+TABLE_RESERVE = 0.015
+
+
+def _table_may_answer(prob) -> bool:
+    """Whether ``singular_table_route`` would optimise sequences for ``prob`` (enough of the shipped
+    singular table's nearest problems are singular); ``False`` where the table is missing, damaged
+    or does not cover the problem."""
+    from . import warmstart
+    try:
+        table = warmstart.default_singular_table()
+        if table is None or table.covers(prob):
+            return False
+        share, _ = table.query(prob)
+    except (OSError, ValueError, IndexError):
+        return False
+    return share >= min(table.vote, SINGULAR_UNCERTAIN_SHARE)
+
 
 def challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSolution:
     """``auto``, where the warm start's verified extremal is likely a local optimum, the
@@ -409,6 +433,11 @@ def try_warm_start(prob, method, warm_start, options, split=False):
                                               rank=bool(getattr(model, "RANKS_CANDIDATES", False)),
                                               more=float(options.get("_cone_search_more", 1.0)))
     else:
+        if (isinstance(warm_start, str) and warm_start == "default" and total - budget < TABLE_RESERVE
+                and _table_may_answer(prob)):
+            # a short budget that the candidates could use up on a problem the singular table
+            # answers (their Newton cannot converge on a singular one): the table's time is kept
+            budget = max(total - TABLE_RESERVE, 0.25 * total)
         sol = multistart.guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}

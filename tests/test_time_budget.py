@@ -18,6 +18,9 @@ from reference_cases import TOUCH
 R3_FILE = Path(__file__).resolve().parent.parent / "examples" / "r3_seed_report_per_axis.json"
 
 FULL = SlewProblem([1.0, 0.8, 0.6], q0=[1.0, 0.0, 0.0, 0.0], qf=[math.cos(0.6), math.sin(0.6), 0.0, 0.0])
+# the same body about an axis off its principal axes: its eigenaxis profile has a gyroscopic term
+GYRO = SlewProblem([1.0, 0.8, 0.6], q0=[1.0, 0.0, 0.0, 0.0],
+                   qf=[math.cos(0.6), *(math.sin(0.6) * np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0))])
 
 
 @pytest.fixture(scope="module")
@@ -342,3 +345,128 @@ def test_switch_time_and_touch_residuals_keep_to_the_solves_deadline():
     with propagation_deadline(time.perf_counter() - 1.0):
         assert propagate_sequence(bvp, times, np.array([0]), np.ones(3), 5.0, y0, True) is None
         assert _residual(bvp, z, times, 5.0, st, True)[0] is None
+
+
+@pytest.fixture(scope="module")
+def held_out_singular():
+    """A held-out full-attitude problem (seed 20261122, index 28) that the shipped singular table
+    answers: most of its nearest tabled problems are singular."""
+    from training.generate import GenerationSpec, problem_for
+    p = problem_for(GenerationSpec("full-attitude", seed=20261122), 28)
+    assert warm_routes._table_may_answer(p)
+    return p
+
+
+def _learned_budget(monkeypatch, prob, total):
+    """The budget ``try_warm_start`` gives the default model's candidates under ``total``."""
+    from solvers.solution import SlewSolution
+    seen = []
+
+    def fake(p, g, opts, budget, method="indirect", with_candidates=True):
+        seen.append(budget)
+        return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "stopped", 0, 0, 0.0, problem=p)
+    monkeypatch.setattr(multistart, "guess_alone", fake)
+    warm_routes.try_warm_start(prob, "auto", "default", {"time_budget": total}, split=True)
+    return seen[0]
+
+
+def test_a_short_budget_keeps_the_singular_tables_time(monkeypatch, held_out_singular):
+    """Where the singular table would answer, a budget the learned candidates could use to its end
+    keeps ``TABLE_RESERVE`` for the table (their Newton cannot converge on a singular problem; an
+    outside replay had seen 0.05 s budgets end 8-10 ms late, the table's answer after them)."""
+    reserve = warm_routes.TABLE_RESERVE
+    assert _learned_budget(monkeypatch, held_out_singular, 0.05) == pytest.approx(0.05 - reserve)
+    # a budget below twice the reserve: the candidates keep a quarter of it
+    assert _learned_budget(monkeypatch, held_out_singular, 0.016) == pytest.approx(0.004)
+    # a long budget leaves the table its time anyway: the candidates' own cap
+    assert _learned_budget(monkeypatch, held_out_singular, 20.0) == warm_routes.WARM_BUDGET
+    # a problem the table does not answer: the whole short budget
+    assert not warm_routes._table_may_answer(FULL)
+    assert _learned_budget(monkeypatch, FULL, 0.05) == pytest.approx(0.05)
+
+
+def test_no_table_route_starts_with_less_than_its_minimum_left(monkeypatch):
+    """The learned stage left less than ``TABLE_MIN_LEFT``: the singular table (whose first
+    sequence takes ~9 ms) is not started, and the answer says the budget was spent."""
+    from solvers.solution import SlewSolution
+
+    def slow_warm(prob, method, warm_start, options, split=False):
+        time.sleep(options["time_budget"] - 0.5 * warm_routes.TABLE_MIN_LEFT)
+        failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "candidates stopped", 1, 1, 0.03, problem=prob)
+        return failed, {"covered": True, "succeeded": False}, None
+
+    def no_table(*a, **k):
+        raise AssertionError("the table started with too little time left")
+    monkeypatch.setattr(warm_routes, "try_warm_start", slow_warm)
+    monkeypatch.setattr(warm_routes, "singular_table_route", no_table)
+    monkeypatch.setattr(auto_route, "solve_auto", no_table)
+    sol = solvers.solve(FULL, time_budget=0.05)
+    assert not sol.success and sol.status == STATUS_BUDGET_EXHAUSTED
+    assert "no time left for the default route" in sol.route
+
+
+def test_with_an_answer_in_hand_no_sequence_starts_that_would_end_past_the_budget(monkeypatch):
+    """``bang_bang_from_sequences``: once a sequence has given a verified answer, the next starts
+    only if the time left is at least what a sequence has taken so far."""
+    from types import SimpleNamespace
+    from solvers import switch_time_opt
+    started = []
+
+    def fake_optimise(problem, signs0, axes, times, T, time_budget=1.0, max_iter=300, bvp=None):
+        started.append(time_budget)
+        time.sleep(0.02)
+        return SimpleNamespace(success=True, T=T * (1.0 - 0.01 * len(started)), nit=1, nfev=1, kkt=1.0)
+
+    def fake_answer(problem, bvp, r, *a):
+        return SimpleNamespace(tf=r.T, route="", guess="", n_candidates=0, nit=0, nfev=0, wall_time=0.0), None
+    monkeypatch.setattr(switch_time_opt, "optimise_switch_times", fake_optimise)
+    monkeypatch.setattr(switch_time_opt, "_answer", fake_answer)
+    seq = ([1.0, 1.0, 1.0], [np.array([0.3, 0.9]), np.array([0.5, 1.0]), np.array([0.7, 1.1])], 1.5)
+    ans, _, _ = switch_time_opt.bang_bang_from_sequences(FULL, [seq] * 5, time_budget=0.05)
+    # 0.02 s a sequence: the third would start with ~0.01 s left, less than the 0.02 s one takes
+    assert len(started) == 2 and ans.n_candidates == 2
+    # without an answer (every sequence fails) the next still starts while time is left
+    started.clear()
+    monkeypatch.setattr(switch_time_opt, "_answer", lambda *a: (None, None))
+    ans, _, _ = switch_time_opt.bang_bang_from_sequences(FULL, [seq] * 5, time_budget=0.05)
+    assert ans is None and len(started) == 3
+
+
+def test_the_eigenaxis_comparison_under_a_budget_fits_the_time_left(monkeypatch):
+    from solvers.eigenaxis_answer import N_GRID_PNORM_GYRO
+    """``auto``'s "never slower than the eigenaxis slew" plans that slew on as many steps as the
+    time left pays for (a p-norm profile on the full grid had taken 32 ms after a 0.3 s budget was
+    spent); without a budget, on the default grid."""
+    seen = []
+    real = api.no_slower_than_eigenaxis
+
+    def spy(prob, sol, t0, n_grid=None):
+        seen.append(n_grid)
+        return real(prob, sol, t0, n_grid=n_grid)
+    monkeypatch.setattr(api, "no_slower_than_eigenaxis", spy)
+    p = GYRO.replace(torque_norm=4.0)
+    solvers.solve(p, time_budget=0.3, warm_start=None)
+    assert seen[-1] is not None and api.FALLBACK_GRID_FLOOR["pnorm-gyro"] <= seen[-1] < N_GRID_PNORM_GYRO
+    # with time to spare, the grid of method="eigenaxis" itself; without a budget, the default
+    solvers.solve(p, warm_start=None, time_budget=20.0)
+    assert seen[-1] == N_GRID_PNORM_GYRO
+    solvers.solve(p, warm_start=None)
+    assert seen[-1] is None
+
+
+def test_a_coarse_eigenaxis_comparison_replaces_an_answer_no_faster_than_it():
+    """``no_slower_than_eigenaxis`` with ``n_grid``: the comparison slew is the one planned on those
+    steps, verified by its replay, and replaces an approximate answer that is not faster."""
+    from solvers.eigenaxis_answer import eigenaxis_answer, no_slower_than_eigenaxis
+    from solvers.solution import SlewSolution
+    p = GYRO.replace(torque_norm=4.0)
+    coarse = eigenaxis_answer(p, n_grid=40)
+    fine = eigenaxis_answer(p)
+    assert coarse.success and coarse.tf > fine.tf
+    approx = SlewSolution(True, STATUS_SUCCESS, "collocation", 1, 1, 0.1, method="collocation", problem=p,
+                          tf=coarse.tf * 1.001, baseline_tf=fine.tf)
+    out = no_slower_than_eigenaxis(p, approx, time.perf_counter(), n_grid=40)
+    assert out.method == "eigenaxis" and out.tf == pytest.approx(coarse.tf, rel=1e-12)
+    # faster than the coarse slew: kept
+    approx.tf = coarse.tf * 0.999
+    assert no_slower_than_eigenaxis(p, approx, time.perf_counter(), n_grid=40) is approx
