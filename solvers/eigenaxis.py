@@ -36,6 +36,9 @@ class EigenaxisSlew:
     rate: np.ndarray        # θ̇ at each sample
     u: np.ndarray           # torque on each grid interval (worse end), last row the final torque
     dtheta: Optional[np.ndarray] = None     # the angle of each piece between samples (θ̈ constant on it)
+    # θ̈ on each piece, from the planner's own θ̇² (a piece a rounding error long makes it ill-conditioned
+    # to recompute from ``rate``, which is in the problem's units)
+    acc: Optional[np.ndarray] = None
 
 
 def _phase_plane(problem: SlewProblem, axis_angle=None):
@@ -48,7 +51,9 @@ def _phase_plane(problem: SlewProblem, axis_angle=None):
     a = np.ascontiguousarray(J * n, float)
     c = np.cross(n, J * n)
     # rounding leaves ~1e-17 of n × Jn for a symmetric body or a principal axis
-    if np.linalg.norm(c) <= 1e-12 * np.linalg.norm(a):
+    # (compared in units of the largest inertia: the norms' squares under- or overflow beyond 1e±150)
+    jm = float(np.max(J))
+    if np.linalg.norm(c / jm) <= 1e-12 * np.linalg.norm(a / jm):
         c = np.zeros(3)
     c = np.ascontiguousarray(c, float)
     if math.isinf(p):
@@ -104,6 +109,25 @@ def _constant_accel_time(th, acc, s_max) -> float:
         return 2.0 * math.sqrt(th / acc)
     w = math.sqrt(s_max)
     return th / w + w / acc
+
+
+def _unit_scaled(problem: SlewProblem):
+    """``(scaled, tau, umax)``: ``problem`` in the units where its largest inertia and torque bound
+    are 1 (times in ``tau = sqrt(J_max / u_max)``, rates in ``1 / tau``). The planner's sweeps and
+    the p-norm bisection work on absolute magnitudes: in the problem's own units they failed for
+    inertias below about 1e-13 or above 1e30 (an outside fuzz, session 42: inertia 1e-15 and torque
+    1e-15, a consistent choice of units, gave a slew whose torque broke its bound 3e4-fold)."""
+    jmax, umax = float(np.max(problem.inertia)), float(np.max(problem.torque_max))
+    tau = math.sqrt(jmax / umax)
+    if jmax == 1.0 and umax == 1.0:
+        return problem, 1.0, 1.0
+    changes = dict(inertia=np.asarray(problem.inertia) / jmax, torque_max=np.asarray(problem.torque_max) / umax,
+                   omega0=np.asarray(problem.omega0) * tau, omegaf=np.asarray(problem.omegaf) * tau)
+    if problem.rate_max is not None:
+        changes["rate_max"] = np.asarray(problem.rate_max) * tau
+    if problem.rate_norm_max is not None:
+        changes["rate_norm_max"] = float(problem.rate_norm_max) * tau
+    return problem.replace(**{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in changes.items()}), tau, umax
 
 
 def _checked(problem) -> SlewProblem:
@@ -177,6 +201,7 @@ def axis_time(problem: SlewProblem, n, th, n_grid=1000) -> float:
     """``eigenaxis_time`` of the rest-to-rest rotation by ``th`` about the body axis ``n`` (unit)
     under ``problem``'s inertia, torque bound and rate limit (its attitudes, rates and cones are
     not read): the planner of waypoint slews times its candidate legs with it."""
+    problem, tau, _ = _unit_scaled(problem)
     n, th, a, c, s_max = _phase_plane(problem, (np.asarray(n, float), float(th)))
     if th == 0.0:
         return 0.0
@@ -186,9 +211,9 @@ def axis_time(problem: SlewProblem, n, th, n_grid=1000) -> float:
         # no gyroscopic term (a symmetric body, or a principal axis): the feasible
         # accelerations do not depend on the rate, so the profile is bang-(coast-)bang
         acc = topp.accel_interval(a, c, U, 0.0)[1] if math.isinf(p) else topp.accel_interval_pnorm(a, c, U, p, 0.0)[1]
-        return _constant_accel_time(th, acc, s_max)
+        return tau * _constant_accel_time(th, acc, s_max)
     _, s, steps = _profile_nodes(problem, n, a, c, U, p, s_max, th, n_grid)
-    return float(topp.nodes_time(steps, s))
+    return tau * float(topp.nodes_time(steps, s))
 
 
 def eigenaxis_slew(problem: SlewProblem, n_grid=4000, ignore_cones=False) -> EigenaxisSlew:
@@ -200,11 +225,13 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000, ignore_cones=False) -> Eig
         raise ValueError("cones: the eigenaxis slew ignores keep-out cones and may cross them; use "
                          "solvers.solve(problem) for a slew that avoids them, or ignore_cones=True for the "
                          "eigenaxis slew as a reference time")
+    # (planned in units where the largest inertia and torque bound are 1, ``_unit_scaled``)
+    problem, tau, umax = _unit_scaled(problem)
     U, p = problem.torque_max, problem.torque_norm
     n, th, a, c, s_max = _phase_plane(problem)
     if th == 0.0:
         z = np.zeros(1)
-        return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)), np.zeros(0))
+        return EigenaxisSlew(0.0, n, 0.0, z, z, z, np.zeros((1, 3)), np.zeros(0), np.zeros(0))
     # the compiled sweeps (the baseline runs on every indirect solve, the slew on every
     # fallback), on the grid and where the speed reaches the rate limit inside a grid step
     theta, s_prof, dth = _profile_nodes(problem, n, a, c, np.ascontiguousarray(U, float), p, s_max, th, n_grid)
@@ -221,4 +248,5 @@ def eigenaxis_slew(problem: SlewProblem, n_grid=4000, ignore_cones=False) -> Eig
     u = np.vstack([u_start, u_end[-1:]])
     worse = np.max(np.abs(u_end) / U, axis=1) > np.max(np.abs(u_start) / U, axis=1)
     u[:-1][worse] = u_end[worse]
-    return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate, u, dth)
+    t = t * tau
+    return EigenaxisSlew(float(t[-1]), n, th, theta, t, rate / tau, u * umax, dth, acc / tau ** 2)

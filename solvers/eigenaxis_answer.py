@@ -34,7 +34,7 @@ from slew_env.checks import is_integer
 from .attitude_bvp import AttitudeBVP
 from .eigenaxis import (BASELINE_CLEARANCE, _checked, _phase_plane, eigenaxis_path, eigenaxis_slew, eigenaxis_time,
                         reference_problem)
-from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
+from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, STATUS_WORSE_THAN_BASELINE, SlewSolution
 from .verify import failure_text, make_check
 
 BOUNDARY_TOL = 1e-8
@@ -97,8 +97,8 @@ class EigenaxisLeg:
         es = eigenaxis_slew(prob, n_grid)
         self.t, self.rate = es.t, es.rate
         self.s = self.rate ** 2
-        # per piece (the grid steps, split where the rate cap starts)
-        self.acc = (self.s[1:] - self.s[:-1]) / (2.0 * es.dtheta)
+        # per piece (the grid steps, split where the rate cap starts), as the planner found it
+        self.acc = es.acc
         self.theta = es.theta
         self.q0 = np.asarray(prob.q0, float)
         self.J = np.asarray(prob.inertia, float)
@@ -261,7 +261,18 @@ def no_slower_than_eigenaxis(prob, sol, t0, n_grid=None) -> SlewSolution:
     ``n_grid``: the eigenaxis profile's steps (``solve`` under a time budget: as many as the time
     left pays for; a coarser profile is slower, so the answer is compared with a slew that is
     flown as planned, not with the finest one)."""
-    if not sol.success or sol.exact or _not_compared(prob) is not None:
+    if _not_compared(prob) is not None:
+        return sol
+    if sol.status == STATUS_WORSE_THAN_BASELINE:
+        # every answer the routes found is slower than the eigenaxis slew (a slew of a few nrad,
+        # where collocation cannot resolve the difference; a local optimum): the eigenaxis slew,
+        # verified by its replay, is the best answer known
+        eig = eigenaxis_answer(prob, n_grid=n_grid)
+        if not eig.success:
+            return sol
+        return _as_answer(eig, sol, t0, f"{sol.route[:200]} found only slower answers ({sol.message[:200]})",
+                          "The time-optimal routes found only slower answers")
+    if not sol.success or sol.exact:
         return sol
     # the collocation baseline is on a coarse grid (lenient by up to 0.1 % per-axis and 2 %
     # p-norm with a rate limit): compare with the eigenaxis answer itself, which is cheap for a
@@ -275,10 +286,16 @@ def no_slower_than_eigenaxis(prob, sol, t0, n_grid=None) -> SlewSolution:
         _, eig = eigenaxis_unless_faster(prob, sol.tf, n_grid=n_grid)
     if eig is None or not eig.success or not eig.tf < sol.tf:
         return sol
-    eig.route = (f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "
-                 f"({eig.tf:.9g}): the eigenaxis slew is the answer")
-    eig.message = (f"{eig.message} The time-optimal routes found nothing faster (best {sol.tf:.9g}, approximate, "
-                   f"tf_tol {sol.tf_tol:.2g}): for a slew this small the two agree to first order.")
+    return _as_answer(eig, sol, t0, f"{sol.route[:200]} gave {sol.tf:.9g}, no faster than the eigenaxis slew "
+                      f"({eig.tf:.9g})", f"The time-optimal routes found nothing faster (best {sol.tf:.9g}, "
+                      f"approximate, tf_tol {sol.tf_tol:.2g}): for a slew this small the two agree to first order")
+
+
+def _as_answer(eig, sol, t0, route, why) -> SlewSolution:
+    """The eigenaxis slew ``eig`` as ``auto``'s answer in place of ``sol``: ``route`` and ``why``
+    say what the routes found; their work and final times are kept."""
+    eig.route = f"{route}: the eigenaxis slew is the answer"
+    eig.message = f"{eig.message} {why}."
     eig.nit, eig.nfev = sol.nit, sol.nfev
     eig.candidates_tf = sorted(set(list(sol.candidates_tf or []) + [round(eig.tf, 9)]))
     eig.warm_start = sol.warm_start

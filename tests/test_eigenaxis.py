@@ -198,3 +198,29 @@ def test_both_sweeps_reaching_the_rate_cap_at_one_angle_give_one_point():
         assert np.all(es.dtheta > 0) and float(np.max(np.abs(es.u))) / U <= 1.0 + 1e-9
         assert es.tf == pytest.approx(th / w + w / (U / J) if w * w < th * U / J else 2 * math.sqrt(th * J / U),
                                       rel=1e-9)
+
+
+@pytest.mark.parametrize("kw", [{}, {"torque_norm": 2.0}, {"rate_max": [0.5, 0.6, 0.7]}, {"rate_norm_max": 0.6},
+                                {"torque_norm": 1.5, "rate_norm_max": 0.6}])
+@pytest.mark.parametrize("kj, ku", [(1e-15, 1e-15), (1e-20, 1.0), (1.0, 1e20), (1e40, 1.0), (1e-300, 1.0),
+                                    (1e200, 1e200), (4e3, 0.05)])
+def test_the_planner_gives_the_same_slew_in_any_units(kw, kj, ku):
+    """Inertia and torque in any consistent units: the same slew, its times scaled by
+    ``sqrt(kj / ku)`` (an outside fuzz had found inertia 1e-15 with torque 1e-15 planned with a
+    torque 3e4 times its bound, and inertia 1e-300 with an eigenaxis time of 0)."""
+    from solvers.eigenaxis import eigenaxis_time
+    from solvers.eigenaxis_answer import eigenaxis_answer
+    J, U = np.array([1.0, 0.8, 0.6]), np.array([1.0, 0.7, 0.9])
+    axis, angle = [1.0, 1.0, 1.0], 1.4
+    tau = math.sqrt(kj / ku)
+    scaled = {k: (np.asarray(v) / tau).tolist() if k.startswith("rate") else v for k, v in kw.items()}
+    ref = eigenaxis_slew(_prob(J, axis, angle, torque_max=U, **kw), n_grid=400)
+    p = _prob(J * kj, axis, angle, torque_max=U * ku, **scaled)
+    e = eigenaxis_slew(p, n_grid=400)
+    assert e.tf == pytest.approx(tau * ref.tf, rel=1e-12)
+    np.testing.assert_allclose(e.t, tau * ref.t, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(e.u, ku * ref.u, rtol=1e-9, atol=1e-9 * ku * np.max(np.abs(ref.u)))
+    assert eigenaxis_time(p, n_grid=400) == pytest.approx(tau * eigenaxis_time(_prob(J, axis, angle, torque_max=U, **kw),
+                                                                             n_grid=400), rel=1e-12)
+    ans = eigenaxis_answer(p, n_grid=400)
+    assert ans.success and ans.tf == pytest.approx(tau * ref.tf, rel=1e-12), ans.message

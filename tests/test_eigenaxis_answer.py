@@ -109,6 +109,30 @@ def test_auto_never_returns_a_small_slew_slower_than_the_eigenaxis_slew():
         assert "no faster than the eigenaxis slew" in sol.route
 
 
+def test_auto_answers_with_the_eigenaxis_slew_where_the_routes_find_only_slower_answers(monkeypatch):
+    """Status 4 (every answer slower than the eigenaxis slew) is not auto's answer to a
+    full-attitude rest-to-rest problem: the eigenaxis slew is (an outside fuzz: a 1e-9 rad slew
+    had ended with collocation's answer 3 % slower, success=False)."""
+    from solvers import auto_route
+    from solvers.solution import STATUS_WORSE_THAN_BASELINE, SlewSolution
+    p = SlewProblem([1, 2, 3], qf=[math.cos(5e-10), math.sin(5e-10), 0.0, 0.0])
+    sol = solvers.solve(p, time_budget=2.0)
+    eig = solvers.solve(p, method="eigenaxis")
+    assert sol.success and sol.status == 0 and eig.success
+    assert sol.tf <= eig.tf * (1 + 1e-12)
+    # whatever the route: one that ends with status 4 hands over to the eigenaxis slew
+    slower = SlewSolution(False, STATUS_WORSE_THAN_BASELINE, "only slower extremals", 7, 9, 0.1, method="indirect",
+                          problem=p, tf=eig.tf * 1.01, candidates_tf=[round(eig.tf * 1.01, 9)])
+    monkeypatch.setattr(auto_route, "solve_auto", lambda *a, **k: slower)
+    out = solvers.solve(p, warm_start=None)
+    assert out.success and out.method == "eigenaxis" and out.tf == pytest.approx(eig.tf, rel=1e-12)
+    assert "found only slower answers" in out.route and out.nit == 7 and out.nfev == 9
+    assert round(eig.tf * 1.01, 9) in out.candidates_tf
+    # not for method="indirect": the user asked for extremals
+    monkeypatch.setattr(solvers.multistart, "solve_indirect", lambda *a, **k: slower)
+    assert solvers.solve(p, method="indirect", warm_start=None) is slower
+
+
 def test_a_pnorm_eigenaxis_answer_of_an_asymmetric_body_is_quick_and_verified():
     # a p-norm bound with a gyroscopic term: the compiled golden-section sweep (review: the
     # Python one took 12-25 s for 4000 steps)
