@@ -724,8 +724,9 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
     t_start = time.perf_counter()
     if extra_starts is None:
         extra_starts = ()
-    if not all(isinstance(g, Guess) for g in extra_starts):
-        raise ValueError("extra_starts: expected a sequence of solvers.Guess")
+    if (isinstance(extra_starts, (str, bytes, Guess)) or not hasattr(extra_starts, "__iter__")
+            or not all(isinstance(g, Guess) for g in extra_starts)):
+        raise ValueError(f"extra_starts: expected a sequence of solvers.Guess, got {extra_starts!r:.80}")
     kw = dict(transcription=transcription, tol=tol, max_iter=max_iter, verbose=verbose, seed=seed, coarse=coarse,
               tols=tols)
     evidence = {}
@@ -937,7 +938,10 @@ def _solve_collocation_mesh(problem, *, n_intervals, transcription, guess, tol, 
     if mesh is None:
         mesh_arr = np.full(N, 1.0 / N)
     else:
-        mesh_arr = np.asarray(mesh, dtype=float).ravel()
+        try:
+            mesh_arr = np.asarray(mesh, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise ValueError(f"mesh: expected {N} positive interval fractions (one per interval), got {mesh!r:.80}") from None
         if mesh_arr.shape != (N,) or not np.all(np.isfinite(mesh_arr)) or np.any(mesh_arr <= 0):
             raise ValueError(f"mesh: expected {N} positive interval fractions (one per interval)")
         mesh_arr = mesh_arr / mesh_arr.sum()

@@ -61,6 +61,12 @@ def _numbers(name, value):
         raise ValueError(f"{name}: expected numbers, got {value!r:.80}") from None
 
 
+# switch times an axis that a guess may carry: the switch-time Jacobian is dense, (3n + 7)² numbers
+# (1,000 an axis: 72 MB; 100,000 had asked numpy for 671 GiB). Optimal slews have a few to a few
+# tens; a singular arc's switch-time answers, some tens
+MAX_GUESS_SWITCHES = 1000
+
+
 @dataclass
 class Guess:
     costate0: np.ndarray
@@ -100,6 +106,11 @@ class Guess:
             for i, s in enumerate(self.switch_times):
                 if s.size and not np.isfinite(s).all():
                     raise ValueError(f"guess.switch_times[{i}]: all entries must be finite, got {s.tolist()!r:.80}")
+                if s.size > MAX_GUESS_SWITCHES:
+                    raise ValueError(f"guess.switch_times[{i}]: at most {MAX_GUESS_SWITCHES} switch times an axis "
+                                     f"(the switch-time Newton's Jacobian is dense in them), got {s.size}")
+        if not isinstance(self.source, str):
+            raise ValueError(f"guess.source: expected a text naming where the guess comes from, got {self.source!r:.80}")
         if isinstance(self.candidates, (str, bytes)) or not isinstance(self.candidates, (list, tuple)):
             raise ValueError(f"guess.candidates: expected a list of Guess objects or functions returning one, "
                              f"got {type(self.candidates).__name__}")
@@ -113,8 +124,10 @@ class Guess:
             for k, t in enumerate(self.touches):
                 try:
                     c, tt, nu = t
+                    if isinstance(c, (bool, str, bytes)) or float(c) != int(c):      # (0.7 was cone 0)
+                        raise ValueError
                     c, tt, nu = int(c), float(tt), float(nu)
-                except (TypeError, ValueError):
+                except (TypeError, ValueError, OverflowError):
                     raise ValueError(f"guess.touches[{k}]: expected (cone index, time, multiplier), "
                                      f"got {t!r}") from None
                 if c < 0 or not (0.0 < tt < self.tf) or not (math.isfinite(nu) and nu >= 0.0):

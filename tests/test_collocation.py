@@ -241,6 +241,9 @@ def _r3():
     (dict(guess="eigenaxis"), r"^guess: expected a SlewSolution, a solvers.Guess or None"),
     (dict(tols={"boundary": 1.0}), r"^tols: unknown check"),
     (dict(n_intervals=4, mesh=[1, 1, 1]), r"^mesh: expected 4 positive interval fractions"),
+    # an outside fuzz: these raised numpy's ValueError naming no field, and a bare TypeError
+    (dict(n_intervals=4, mesh="x"), r"^mesh: expected 4 positive interval fractions .*got 'x'"),
+    (dict(extra_starts=5), r"^extra_starts: expected a sequence of solvers.Guess, got 5"),
 ])
 def test_bad_options_raise_naming_the_option(kw, pattern):
     with pytest.raises(ValueError, match=pattern):

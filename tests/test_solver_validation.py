@@ -149,6 +149,24 @@ def test_guess_fields_that_are_not_numbers_are_refused_by_name():
         solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[[float("nan")], [], []])
 
 
+def test_guess_fields_that_would_fail_deep_inside_are_refused_by_name():
+    # an outside fuzz: 10,000 switch times an axis asked numpy for a 671 GiB Jacobian, source=None
+    # raised AttributeError in the multi-start, and a cone index 0.7 was taken as cone 0
+    from solvers.guesses import MAX_GUESS_SWITCHES
+    many = [np.linspace(0.1, 0.9, MAX_GUESS_SWITCHES + 1), [], []]
+    with pytest.raises(ValueError, match=rf"^guess.switch_times\[0\]: at most {MAX_GUESS_SWITCHES} switch times"):
+        solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=many)
+    assert solvers.Guess(costate0=np.ones(7), tf=1.0, switch_times=[many[0][:-1], [], []]).switch_times[0].size == \
+        MAX_GUESS_SWITCHES
+    for bad in (None, 3, b"x"):
+        with pytest.raises(ValueError, match=r"^guess.source: expected a text"):
+            solvers.Guess(costate0=np.ones(7), tf=1.0, source=bad)
+    for bad in (0.7, True, "1"):
+        with pytest.raises(ValueError, match=r"^guess.touches\[0\]: expected \(cone index, time, multiplier\)"):
+            solvers.Guess(costate0=np.ones(7), tf=2.0, touches=[(bad, 1.0, 0.1)])
+    assert solvers.Guess(costate0=np.ones(7), tf=2.0, touches=[(1.0, 1.0, 0.1)]).touches == [(1, 1.0, 0.1)]
+
+
 def test_a_guess_touching_a_cone_the_problem_lacks_is_refused():
     # a fuzz run: an out-of-range cone index was accepted (the solvers recovered, silently)
     prob = SlewProblem.from_dict({"inertia": [1, 1, 1], "sensor_target": [0, 1, 0],
