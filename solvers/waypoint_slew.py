@@ -304,7 +304,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     """The waypoint slew of ``plan`` (default: ``plan_waypoints(problem)``) as a verified
     ``SlewSolution`` (module docstring); ``n_grid``: angle steps of each leg's profile (default:
     ``eigenaxis_answer``'s). Where no plan exists, a failed solution (status 5) that says so."""
-    from .eigenaxis_answer import BOUNDARY_TOL, N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg
+    from .eigenaxis_answer import BOUNDARY_TOL, N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg, recorded
     from .eigenaxis import _phase_plane
     t_start = time.perf_counter()
     target = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
@@ -331,11 +331,11 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
         grids.append(grid)
         offsets.append(offsets[-1] + legs[-1].tf)
     # dense samples of the whole slew (each junction twice: the end of one leg, the start of the next)
-    parts = [leg.samples() for leg in legs]
-    td = np.concatenate([p[0] + off for p, off in zip(parts, offsets)])
-    qd = np.vstack([p[1] for p in parts])
-    wd = np.vstack([p[2] for p in parts])
-    ud = np.vstack([p[3] for p in parts])
+    def joined(n_dense):
+        parts = [leg.samples(n_dense) for leg in legs]
+        return (np.concatenate([p[0] + off for p, off in zip(parts, offsets)]), np.vstack([p[1] for p in parts]),
+                np.vstack([p[2] for p in parts]), np.vstack([p[3] for p in parts]))
+    (td, qd, wd, ud), record = recorded(target, joined, target.inertia)
     # verification: the legs' controls flown one after another from the start state
     x = np.concatenate([np.asarray(target.q0, float), np.zeros(3)])
     for leg in legs:
@@ -355,6 +355,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     from .clearance import CLEARANCE_TOL, certified_min_margin
     cert = certified_min_margin(target, td, qd, wd)[1]
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
+    checks["record_replay"] = record
     text = failure_text(checks)
     tf = float(offsets[-1])
     ends = np.array(offsets)
