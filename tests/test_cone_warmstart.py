@@ -435,11 +435,16 @@ def test_a_tabled_row_maps_back_as_the_staged_reference_does():
     p = canonical_problem(table.a["X"][touched])
     with pytest.raises(ValueError, match="guess.touches"):
         ConeNearestNeighbourModel(bad).row_guess(p, cone_canonical_form(p), touched)
-    # a NaN first-arc sign: the compiled path had made it 0 on every axis (a review)
+    # a NaN first-arc sign: the compiled path had made it 0 on every axis (a review). A table
+    # with one is refused when it is made (or loaded); one changed afterwards still gets no 0 sign
     bad = {key: v.copy() for key, v in table.a.items()}
     bad["U"][touched, 1] = np.nan
+    with pytest.raises(ValueError, match="^U: the first-arc signs must be ±1, 1 entries are not"):
+        ConeNearestNeighbourModel(bad)
+    t = ConeNearestNeighbourModel({key: v.copy() for key, v in table.a.items()})
+    t.a["U"][touched, 1] = np.nan
     with pytest.raises(ValueError, match="guess.u_first"):
-        ConeNearestNeighbourModel(bad).row_guess(p, cone_canonical_form(p), touched)
+        t.row_guess(p, cone_canonical_form(p), touched)
 
 
 def test_the_ensembles_later_candidates_are_made_only_when_reached(monkeypatch):

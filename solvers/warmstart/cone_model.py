@@ -44,7 +44,8 @@ from ..core import warmstart_kernels as _k
 from ..guesses import Guess
 from .cone_features import (MAX_CONES, N_CONE_FEATURES, cone_unsupported_reason, form_of_supported,
                             solution_from_canonical)
-from .model import ModelFileError, WarmStartModel
+from .model import (MAX_HEADS, MAX_SWITCHES, ModelFileError, WarmStartModel, card_whole,
+                    check_output_layout)
 
 
 
@@ -75,18 +76,21 @@ class ConeWarmStartModel(WarmStartModel):
     KIND = "pointing-cones"
 
     def _check_layout(self, card):
-        self.K = int(card["max_switches"])
-        heads = card.get("heads", 1)
-        if isinstance(heads, bool) or not isinstance(heads, int) or heads < 1:
-            raise ModelFileError(f"card.heads: expected a whole number ≥ 1, got {heads!r}")
+        """The card's structure fields against the weights: ``max_switches``, ``heads``, the
+        output size, the ``output_layout`` of one head that the compiled decoder reads at each
+        head's offset (``warmstart_kernels.decode_cone``: as many touch slots as ``MAX_CONES``)."""
+        self.K = card_whole(card, "max_switches", 0, MAX_SWITCHES)
+        heads = card_whole(card, "heads", 1, MAX_HEADS, default=1,
+                           why=" (each head adds two candidates to a guess)")
         self.heads = heads
-        self.layout = {k: tuple(v) for k, v in card.get("output_layout", cone_output_layout(self.K)).items()}
         self.head_size = cone_output_layout(self.K)["times_logit"][1]
         n_in, n_out = self.weights[0][0].shape[0], self.weights[-1][0].shape[1]
         if n_out != cone_output_size(self.K, heads) or n_in != N_CONE_FEATURES:
             raise ModelFileError(f"weights: shapes {n_in} → {n_out} do not match {N_CONE_FEATURES} features → "
                                  f"{cone_output_size(self.K, heads)} outputs of a pointing-cones model "
                                  f"(max_switches {self.K}, {heads} head{'s' if heads > 1 else ''})")
+        self.layout = check_output_layout(card.get("output_layout"), cone_output_layout(self.K), self.head_size,
+                                          self.K)
 
     def _coverage(self, problem, supported=False):
         """``(reason or None, canonical form or None)``; ``supported``: the caller has just found

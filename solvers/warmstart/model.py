@@ -18,8 +18,11 @@ b1, …`` (float32; layer ``k`` maps ``h ↦ act(h W_k + b_k)``, no activation o
 last), ``x_mean``, ``x_std``, and ``card``, a JSON string: ``format`` ("slewopt-warmstart"),
 ``format_version``, ``activation``, ``max_switches``, ``output_layout``, ``domain``
 (the family the model covers), ``training`` (data and metrics) and ``sha256`` of the
-weight arrays. ``load`` refuses a file that is missing, unreadable, of another format or
-version, or whose weights do not match the checksum.
+weight arrays. ``load`` refuses (``ModelFileError``, naming the file and the field) a file that
+is missing, unreadable, of another format or version, whose weights do not match the checksum,
+whose card is not a JSON object or has a field of the wrong type or range (``card_whole``,
+``checked_domain``, ``check_output_layout``), or whose layers do not chain as the compiled forward
+pass reads them (``check_weight_chain``; docs/WARMSTART.md, "Model file").
 """
 from __future__ import annotations
 
@@ -41,6 +44,17 @@ from .features import N_FEATURES, canonical_form, unsupported_reason
 FORMAT = "slewopt-warmstart"
 FORMAT_VERSION = 1
 ACTIVATIONS = ("silu", "tanh", "relu")
+
+# Bounds on what a model or table file may claim (docs/WARMSTART.md, "Model file"). A guess is made
+# inside a solve's time budget, before the solver starts, so every count that sets its cost is
+# bounded: the shipped files use 3–5 neighbours, 3 sequences, 5 switches, 4 layers, 8 heads and
+# 145,000 weights. 64 neighbours cost about 1.6 ms a guess (mapping each to the problem), 4 Mi
+# weights about 0.7 ms a network pass.
+MAX_LAYERS = 64
+MAX_HEADS = 64
+MAX_SWITCHES = 50          # per axis (the switch-time Newton's Jacobian grows as the square of 3·K)
+MAX_WEIGHTS = 1 << 22      # weights of all layers together
+MAX_NEIGHBOURS = 64        # a table's k (and the singular table's n_sequences)
 
 
 def output_size(max_switches: int) -> int:
@@ -67,6 +81,168 @@ def weights_checksum(arrays) -> str:
 
 class ModelFileError(ValueError):
     """A model file that cannot be used (missing, corrupt, other format or version)."""
+
+
+# --------------------------------------------------------------------------- card checks
+def _is_whole(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def card_object(card, path):
+    """``card`` (parsed JSON) if it is a JSON object; ``ModelFileError`` naming ``path`` otherwise."""
+    if not isinstance(card, dict):
+        raise ModelFileError(f"model: {path}: the card is a JSON {_json_type(card)}, not an object of named fields "
+                             "(a damaged or hand-made file)")
+    return card
+
+
+def _json_type(v) -> str:
+    return {list: "array", str: "string", bool: "boolean", type(None): "null", int: "number",
+            float: "number"}.get(type(v), type(v).__name__)
+
+
+def whole_field(value, field, lo, hi, why=""):
+    """``value`` as an ``int`` if it is a whole number (not a bool, not text, not 2.5) in
+    ``[lo, hi]``; else ``ModelFileError`` naming ``field`` (``why``: the reason for the bound)."""
+    if not _is_whole(value) or not lo <= int(value) <= hi:
+        raise ModelFileError(f"{field}: expected a whole number ≥ {lo} and ≤ {hi}{why}, got {value!r}"[:300])
+    return int(value)
+
+
+def card_whole(card, field, lo, hi, default=None, why=""):
+    """``card[field]`` checked by ``whole_field`` (``default`` where absent; ``None``: required)."""
+    if field not in card:
+        if default is None:
+            raise ModelFileError(f"card.{field}: missing")
+        return default
+    return whole_field(card[field], f"card.{field}", lo, hi, why)
+
+
+def card_text(card, field, default):
+    """``card[field]`` if it is text, ``default`` where absent; ``ModelFileError`` otherwise."""
+    v = card.get(field, default)
+    if not isinstance(v, str):
+        raise ModelFileError(f"card.{field}: expected text, got {_json_type(v)} {v!r}"[:300])
+    return v
+
+
+def _range_pair(d, key, lo, hi, whole=False):
+    v = d[key]
+    ok = (isinstance(v, (list, tuple)) and len(v) == 2
+          and all((_is_whole(a) if whole else _is_number(a)) and math.isfinite(float(a)) for a in v))
+    if ok:
+        a, b = (float(x) for x in v)
+        ok = lo <= a <= b <= hi
+    if not ok:
+        kind = "whole numbers" if whole else "numbers"
+        raise ModelFileError(f"card.domain.{key}: expected [low, high], {kind} with {lo:g} ≤ low ≤ high ≤ {hi:g}, "
+                             f"got {v!r}"[:300])
+
+
+def checked_domain(domain) -> dict:
+    """The card's ``domain`` (``{}`` if absent or null) once its fields are well-formed: the
+    ranges the coverage checks read (``angle_deg``, ``inertia_ratio``, ``torque_ratio_min``,
+    ``torque_norm``, ``n_cones``, ``cone_half_angle_deg``, the rate-limit flags) and the
+    descriptive ones (``target``, ``family``, ...); other fields are kept as they are.
+    ``ModelFileError`` naming the field otherwise (a malformed domain had loaded, and then every
+    coverage check raised a bare ``ValueError`` inside the solve, which quietly fell back)."""
+    if domain is None:
+        return {}
+    if not isinstance(domain, dict):
+        raise ModelFileError(f"card.domain: expected a JSON object of the family's ranges, got "
+                             f"{_json_type(domain)} {domain!r}"[:300])
+    for key, lo, hi in (("angle_deg", 0.0, 180.0), ("cone_half_angle_deg", 0.0, 180.0), ("inertia_ratio", 0.0, 1.0)):
+        if key in domain:
+            _range_pair(domain, key, lo, hi)
+    if "n_cones" in domain:
+        from .cone_features import MAX_CONES
+        _range_pair(domain, "n_cones", 0, MAX_CONES, whole=True)
+    if "torque_ratio_min" in domain:
+        v = domain["torque_ratio_min"]
+        if not (_is_number(v) and 0.0 <= float(v) <= 1.0):
+            raise ModelFileError(f"card.domain.torque_ratio_min: expected a number in [0, 1], got {v!r}"[:300])
+    if "torque_norm" in domain:
+        domain_torque_norm(domain)
+    for key in ("rate_max", "rate_norm_max", "rest_to_rest", "cones"):
+        if key in domain and not (domain[key] is None or isinstance(domain[key], bool)):
+            raise ModelFileError(f"card.domain.{key}: expected true, false or null, got {domain[key]!r}"[:300])
+    for key in ("target", "family", "sensor_axis"):
+        if key in domain and not (domain[key] is None or isinstance(domain[key], str)):
+            raise ModelFileError(f"card.domain.{key}: expected text, got {domain[key]!r}"[:300])
+    return domain
+
+
+def domain_torque_norm(domain) -> float:
+    """The torque norm ``p`` a domain covers (``"inf"``, or a number ≥ 1, as a number or text)."""
+    v = domain.get("torque_norm", "inf")
+    try:
+        p = float(v) if (_is_number(v) or isinstance(v, str)) else math.nan
+    except ValueError:
+        p = math.nan
+    if not p >= 1.0:      # (NaN too)
+        raise ModelFileError(f"card.domain.torque_norm: expected \"inf\" or a number ≥ 1, got {v!r}"[:300])
+    return p
+
+
+def check_weight_chain(weights, where="weights"):
+    """The layers ``[(W_k, b_k), ...]`` as the compiled forward pass reads them
+    (``warmstart_kernels.mlp_forward``, ``_dense``): at least one; each ``W_k`` a 2-D array of
+    real numbers whose rows are the previous layer's outputs (``W_k.shape[0] ==
+    W_{k-1}.shape[1]``), each ``b_k`` 1-D with one entry a column of ``W_k``, no empty layer,
+    and at most ``MAX_WEIGHTS`` weights in all. ``ModelFileError`` naming the array otherwise
+    (a file whose layers did not chain had loaded, and the compiled pass read past the end of a
+    layer's outputs)."""
+    if len(weights) < 1:
+        raise ModelFileError(f"{where}: the network has no layer")
+    total = 0
+    for k, (W, b) in enumerate(weights):
+        for name, a, nd in ((f"W{k}", W, 2), (f"b{k}", b, 1)):
+            a = np.asarray(a)
+            if a.dtype.kind not in "fiu":
+                raise ModelFileError(f"{where}: {name} holds {a.dtype} values, not real numbers")
+            if a.ndim != nd:
+                raise ModelFileError(f"{where}: {name} has shape {a.shape}, expected a {nd}-D array")
+        W, b = np.asarray(W), np.asarray(b)
+        if 0 in W.shape:
+            raise ModelFileError(f"{where}: W{k} has shape {W.shape}, an empty layer")
+        if k > 0:
+            given = np.asarray(weights[k - 1][0]).shape[1]
+            if W.shape[0] != given:
+                raise ModelFileError(f"{where}: W{k} expects {W.shape[0]} inputs, W{k - 1} gives {given} "
+                                     f"(W{k - 1} {tuple(weights[k - 1][0].shape)}, W{k} {W.shape})")
+        if b.shape[0] != W.shape[1]:
+            raise ModelFileError(f"{where}: b{k} has {b.shape[0]} entries, W{k} has {W.shape[1]} outputs")
+        total += W.size + b.size
+    if total > MAX_WEIGHTS:
+        raise ModelFileError(f"{where}: {total:,} weights in all, more than the {MAX_WEIGHTS:,} a guess can pass "
+                             "through within a millisecond or so of a solve's time budget")
+
+
+def check_output_layout(layout, expected, head_size, K):
+    """The card's ``output_layout`` (``None``: ``expected``) as ``{name: (start, end)}``: the
+    names of ``expected``, each slice as wide as there (the compiled decoders read that many
+    outputs from its start) and inside one head's ``head_size`` outputs."""
+    if layout is None:
+        return {k: tuple(v) for k, v in expected.items()}
+    if not isinstance(layout, dict) or set(layout) != set(expected):
+        got = sorted(layout) if isinstance(layout, dict) else layout
+        raise ModelFileError(f"card.output_layout: expected the slices {sorted(expected)}, got {got!r}"[:300])
+    out = {}
+    for name, (a0, b0) in expected.items():
+        v = layout[name]
+        ok = isinstance(v, (list, tuple)) and len(v) == 2 and all(_is_whole(x) for x in v)
+        if ok:
+            a, b = int(v[0]), int(v[1])
+            ok = 0 <= a and b - a == b0 - a0 and b <= head_size
+        if not ok:
+            raise ModelFileError(f"card.output_layout.{name}: expected [start, start + {b0 - a0}] within the "
+                                 f"{head_size} outputs of a head (max_switches {K}), got {v!r}"[:300])
+        out[name] = (a, b)
+    return out
 
 
 def read_npz(path) -> dict:
@@ -99,7 +275,8 @@ def read_table(path, fmt, version):
         card = json.loads(str(d["card"]))
     except (KeyError, json.JSONDecodeError) as e:
         raise ModelFileError(f"model: {path} has no readable card ({e})") from None
-    if card.get("format") != fmt or card.get("format_version") != version:
+    card_object(card, path)
+    if card.get("format") != fmt or not _is_whole(card.get("format_version")) or card["format_version"] != version:
         raise ModelFileError(f"model: {path} is not a {fmt} v{version} file")
     return d, card
 
@@ -129,17 +306,43 @@ class WarmStartModel:
     def __init__(self, weights, x_mean, x_std, card: dict):
         # float32 as stored: a 1x256 by 256x256 product is twice as fast as in float64, and a
         # guess needs no more than single precision
+        if not isinstance(card, dict):
+            raise ModelFileError(f"card: expected a dict of named fields, got {type(card).__name__}")
         self.weights = weights
-        self.x_mean = np.asarray(x_mean, np.float64)
-        self.x_std = np.asarray(x_std, np.float64)
+        self.x_mean = self._standardisation("x_mean", x_mean)
+        self.x_std = self._standardisation("x_std", x_std)
+        if not np.all(self.x_std > 0.0):
+            j = int(np.flatnonzero(~(self.x_std > 0.0))[0])
+            raise ModelFileError(f"x_std: the features' scales must be positive, x_std[{j}] is {float(self.x_std[j])!r} "
+                                 "(each feature is divided by its scale)")
         self.card = card
         self.activation = card.get("activation", "silu")
-        if self.activation not in ACTIVATIONS:
+        if not isinstance(self.activation, str) or self.activation not in ACTIVATIONS:
             raise ModelFileError(f"card.activation: unknown activation {self.activation!r}")
         self._check_layout(card)
-        self.domain = card.get("domain", {})
-        self.name = card.get("name", "warm-start model")
+        # a smoke test of the loaded network (numpy, 0.1 ms): finite outputs at the features' mean.
+        # Finite weights can still overflow (a copy scaled by 1e20), and every guess then fails
+        with np.errstate(all="ignore"):
+            out = self.forward(self.x_mean[None, :])
+        if not np.all(np.isfinite(out)):
+            raise ModelFileError(f"weights: the network's outputs at the features' mean (x_mean) are not finite "
+                                 f"({int(np.sum(~np.isfinite(out)))} of {out.size}): weights out of any trained range")
+        self.domain = checked_domain(card.get("domain"))
+        self._torque_norm = domain_torque_norm(self.domain)
+        self.name = card_text(card, "name", "warm-start model")
         self.path = card.get("_path")
+
+    def _standardisation(self, field, v):
+        """``x_mean`` or ``x_std``: one finite real number a feature (the first layer's inputs)."""
+        a = np.asarray(v)
+        n_in = self.weights[0][0].shape[0]
+        if a.dtype.kind not in "fiu" or a.shape != (n_in,):
+            raise ModelFileError(f"{field}: expected {n_in} real numbers (one a feature, as W0 has rows), got "
+                                 f"{a.dtype} values of shape {a.shape}")
+        a = a.astype(np.float64)
+        if not np.all(np.isfinite(a)):
+            raise ModelFileError(f"{field}: {int(np.sum(~np.isfinite(a)))} entries are not finite (NaN or inf)")
+        return a
 
     KIND = "full-attitude"
 
@@ -150,19 +353,33 @@ class WarmStartModel:
 
     @weights.setter
     def weights(self, value):
+        # the layers must chain before the compiled pass reads them (``check_weight_chain``)
+        value = list(value)
+        check_weight_chain(value)
         self._weights = [(np.asarray(W, np.float32), np.asarray(b, np.float32)) for W, b in value]
+        for k, (W, b) in enumerate(self._weights):
+            for name, a in ((f"W{k}", W), (f"b{k}", b)):
+                if not np.all(np.isfinite(a)):
+                    raise ModelFileError(f"weights: {name} has {int(np.sum(~np.isfinite(a)))} entries that are not "
+                                         "finite in float32 (NaN, inf, or beyond 3.4e38): every guess would be NaN")
         # the compiled single-row path (``forward`` of one row): writable row-major copies, so
         # that numba sees one array type in the tuple
         self._rows = (tuple(np.array(W, np.float32, order="C") for W, _ in self._weights),
                       tuple(np.array(b, np.float32, order="C") for _, b in self._weights))
 
     def _check_layout(self, card):
-        self.K = int(card["max_switches"])
-        self.layout = {k: tuple(v) for k, v in card.get("output_layout", output_layout(self.K)).items()}
+        """The card's structure fields against the weights: ``max_switches``, the output size,
+        the ``output_layout`` the compiled decoder reads (``warmstart_kernels.decode_attitude``)."""
+        self.K = card_whole(card, "max_switches", 0, MAX_SWITCHES)
+        heads = card.get("heads", 1)
+        if heads != 1 or isinstance(heads, bool):
+            raise ModelFileError(f"card.heads: a full-attitude model has one head, got {heads!r} (several heads are "
+                                 "for kind 'pointing-cones')"[:300])
         n_out = self.weights[-1][0].shape[1]
         if n_out != output_size(self.K) or self.weights[0][0].shape[0] != N_FEATURES:
             raise ModelFileError(f"weights: shapes {self.weights[0][0].shape[0]} → {n_out} do not match "
                                  f"{N_FEATURES} features → {output_size(self.K)} outputs (max_switches {self.K})")
+        self.layout = check_output_layout(card.get("output_layout"), output_layout(self.K), n_out, self.K)
 
     # ------------------------------------------------------------------ file
     @classmethod
@@ -177,12 +394,19 @@ class WarmStartModel:
             card = json.loads(str(data["card"]))
         except json.JSONDecodeError as e:
             raise ModelFileError(f"model: {path}: the model card is not valid JSON ({e})") from None
+        card_object(card, path)
         if card.get("format") != FORMAT:
             raise ModelFileError(f"model: {path} is not a {FORMAT} file (format {card.get('format')!r})")
-        if card.get("format_version") != FORMAT_VERSION:
+        if not _is_whole(card.get("format_version")) or card["format_version"] != FORMAT_VERSION:
             raise ModelFileError(f"model: {path} has format version {card.get('format_version')!r}; this "
                                  f"version of slewopt reads version {FORMAT_VERSION} (re-export the model)")
-        n_layers = int(card.get("n_layers", 0))
+        try:
+            n_layers = card_whole(card, "n_layers", 1, MAX_LAYERS)
+            extra = sorted(k for k in data if k[:1] in "Wb" and k[1:].isdigit() and int(k[1:]) >= n_layers)
+            if extra:
+                raise ModelFileError(f"card.n_layers: {n_layers}, but the file holds {', '.join(extra)} too")
+        except ModelFileError as e:
+            raise ModelFileError(f"model: {path}: {e}") from None
         try:
             weights = [(data[f"W{k}"], data[f"b{k}"]) for k in range(n_layers)]
             x_mean, x_std = data["x_mean"], data["x_std"]
@@ -195,10 +419,15 @@ class WarmStartModel:
         kind = card.get("kind", "full-attitude")
         if kind == "pointing-cones":
             from .cone_model import ConeWarmStartModel
-            return ConeWarmStartModel(weights, x_mean, x_std, card)
-        if kind != "full-attitude":
-            raise ModelFileError(f"model: {path}: unknown model kind {kind!r}")
-        return cls(weights, x_mean, x_std, card)
+            model_cls = ConeWarmStartModel
+        elif kind == "full-attitude":
+            model_cls = cls
+        else:
+            raise ModelFileError(f"model: {path}: unknown model kind {kind!r}"[:300])
+        try:     # the card's fields and the layers' shapes (``__init__``), named with the file
+            return model_cls(weights, x_mean, x_std, card)
+        except ModelFileError as e:
+            raise ModelFileError(f"model: {path}: {e}") from None
 
     def save(self, path):
         arrays = {}
@@ -245,10 +474,9 @@ class WarmStartModel:
             return "rate_max: the model was trained without rate limits"
         if problem.rate_norm_max is not None and not d.get("rate_norm_max", False):
             return "rate_norm_max: the model was trained without a limit on the rate's norm"
-        norm = d.get("torque_norm", "inf")
         p = problem.torque_norm
-        if str(norm) != ("inf" if math.isinf(p) else repr(float(p))):
-            return f"torque_norm: the model covers torque_norm={norm}, got {p}"
+        if float(p) != self._torque_norm:      # (the domain's, checked at load: "inf" or a number)
+            return f"torque_norm: the model covers torque_norm={d.get('torque_norm', 'inf')}, got {p}"
         return None
 
     def _range_reason(self, x):

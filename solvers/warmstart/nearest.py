@@ -10,7 +10,9 @@ structure, mapped back to the query's axes.
 
 File format (``.nn.npz``): ``X`` (n, N_FEATURES), ``Z`` (n, 6), ``T`` (n,), ``T_eig``
 (n,), ``U`` (n, 3), ``S`` (n, 3, K) switch times (NaN-padded), and ``card`` (JSON:
-``format`` "slewopt-nn", ``format_version``, ``domain``, ``k``).
+``format`` "slewopt-nn", ``format_version``, ``domain``, ``k``). ``k`` is a whole number from
+1 to ``MAX_NEIGHBOURS`` (64) and at most the table's rows (``checked_neighbours``): a guess
+maps every neighbour to the problem inside the solve's time budget.
 """
 from __future__ import annotations
 
@@ -23,11 +25,48 @@ from scipy.spatial import cKDTree
 
 from slew_env import SlewProblem
 from ..guesses import Guess
-from .features import canonical_form, solution_from_canonical, unsupported_reason
-from .model import ModelFileError, read_table
+from .features import N_FEATURES, canonical_form, solution_from_canonical, unsupported_reason
+from .model import (MAX_NEIGHBOURS, ModelFileError, card_text, card_whole, checked_domain, read_table,
+                    whole_field)
 
 NN_FORMAT = "slewopt-nn"
 NN_FORMAT_VERSION = 1
+
+
+NEIGHBOURS_WHY = (" (a guess maps every neighbour's solution to the problem before the solver starts, inside "
+                  "its time budget: about 25 µs a neighbour)")
+
+
+def checked_neighbours(k, n_rows, field="k", what="neighbours"):
+    """A table's count of ``what`` (``k``, or a singular table's ``n_sequences``): a whole number
+    from 1 to ``MAX_NEIGHBOURS`` and to the table's ``n_rows``; ``ModelFileError`` naming
+    ``field`` otherwise (a card with k = 100,000 had made every row a candidate: a guess of a
+    second, outside any time budget)."""
+    k = whole_field(k, field, 1, MAX_NEIGHBOURS, NEIGHBOURS_WHY)
+    if n_rows is not None and k > n_rows:
+        raise ModelFileError(f"{field}: {k} {what}, but the table holds only {n_rows} row{'s' if n_rows != 1 else ''}")
+    return k
+
+
+def check_signs(U, field="U"):
+    """First-arc signs: every entry ±1 (a 0 or NaN sign maps to no bang-bang arc)."""
+    if U.size and not np.all(np.abs(U) == 1.0):
+        raise ValueError(f"{field}: the first-arc signs must be ±1, {int(np.sum(np.abs(U) != 1.0))} entries are not")
+
+
+def table_card(card, n_rows, default_name):
+    """The neighbour table card's fields checked: ``(k, domain, name)`` (``k`` 3 where absent;
+    ``ModelFileError`` naming the field)."""
+    k = card_whole(card, "k", 1, MAX_NEIGHBOURS, default=3, why=NEIGHBOURS_WHY)
+    checked_neighbours(k, n_rows, "card.k")
+    return k, checked_domain(card.get("domain")), card_text(card, "name", default_name)
+
+
+def table_rows(d, key="X"):
+    """The number of rows of a table file's array ``key`` (``None`` if it is missing or not an
+    array of rows: the array checks say so)."""
+    a = d.get(key)
+    return int(a.shape[0]) if isinstance(a, np.ndarray) and a.ndim >= 1 else None
 
 
 def table_coverage(problem, unsupported):
@@ -61,6 +100,9 @@ class NearestNeighbourModel:
         self.X = np.asarray(X, float)
         if self.X.ndim != 2 or self.X.shape[0] == 0:
             raise ValueError("X: the nearest-neighbour table needs at least one solved problem")
+        if self.X.shape[1] != N_FEATURES:
+            raise ValueError(f"X: the table's features have shape {self.X.shape}, expected ({self.X.shape[0]}, "
+                             f"{N_FEATURES}) (the full-attitude canonical features)")
         self.Z, self.T, self.T_eig = np.asarray(Z, float), np.asarray(T, float), np.asarray(T_eig, float)
         self.U, self.S = np.asarray(U, float), np.asarray(S, float)
         n = self.X.shape[0]
@@ -68,12 +110,13 @@ class NearestNeighbourModel:
                 or self.S.ndim != 3 or self.S.shape[:2] != (n, 3)):
             raise ValueError(f"Z, T, T_eig, U, S: expected one row per tabled problem ({n})")
         if not (np.all(np.isfinite(self.X)) and np.all(np.isfinite(self.Z)) and np.all(self.T > 0)
-                and np.all(self.T_eig > 0)):
+                and np.all(self.T_eig > 0) and np.all(np.isfinite(self.T)) and np.all(np.isfinite(self.T_eig))):
             raise ValueError("X, Z, T, T_eig: the features and costates must be finite and the times positive")
-        self.k = int(k)
-        if self.k < 1:
-            raise ValueError(f"k: need at least one neighbour, got {self.k}")
-        self.domain = domain or {}
+        check_signs(self.U)
+        self.k = checked_neighbours(k, n)
+        self.domain = checked_domain(domain)
+        if not isinstance(name, str):
+            raise ValueError(f"name: expected text, got {name!r}"[:200])
         self.name = name
         self.scale = np.maximum(self.X.std(axis=0), 1e-3)
         self.tree = cKDTree(self.X / self.scale)
@@ -86,12 +129,15 @@ class NearestNeighbourModel:
     def load(cls, path):
         path = os.fspath(path)
         d, card = read_table(path, NN_FORMAT, NN_FORMAT_VERSION)
-        if card.get("kind") == "pointing-cones":
+        kind = card.get("kind", "full-attitude")
+        if kind == "pointing-cones":
             from .cone_nearest import ConeNearestNeighbourModel
             return ConeNearestNeighbourModel.from_card(d, card, path)
+        if kind != "full-attitude":
+            raise ModelFileError(f"model: {path}: unknown table kind {kind!r}"[:300])
         try:
-            return cls.from_arrays(d, k=card.get("k", 3), domain=card.get("domain"),
-                                   name=card.get("name", "nearest-neighbour"))
+            k, domain, name = table_card(card, table_rows(d), "nearest-neighbour")
+            return cls.from_arrays(d, k=k, domain=domain, name=name)
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFileError(f"model: {path} is not a usable nearest-neighbour table ({e})") from None
 

@@ -20,15 +20,16 @@ held-out problems), ``domain`` and ``training``).
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from slew_env import SlewProblem
-from .features import canonical_form, unsupported_reason
-from .model import ModelFileError, read_table
-from .nearest import table_coverage, tabled_solution
+from .features import N_FEATURES, canonical_form, unsupported_reason
+from .model import MAX_NEIGHBOURS, ModelFileError, _is_number, card_text, card_whole, checked_domain, read_table
+from .nearest import NEIGHBOURS_WHY, check_signs, checked_neighbours, table_coverage, table_rows, tabled_solution
 
 SINGULAR_FORMAT = "slewopt-singular"
 SINGULAR_FORMAT_VERSION = 1
@@ -38,9 +39,16 @@ class SingularTable:
     def __init__(self, X, singular, T, T_eig, U, S, k=5, vote=0.6, n_sequences=3, tf_rel_tol=float("nan"),
                  domain=None, training=None, name="singular table"):
         self.X = np.asarray(X, float)
-        self.singular = np.asarray(singular, bool)
-        if self.X.ndim != 2 or self.X.shape[0] != self.singular.shape[0] or not self.singular.any():
+        self.singular = np.asarray(singular)
+        if self.singular.dtype.kind not in "biu" or (self.singular.size and not np.all(np.isin(self.singular, (0, 1)))):
+            raise ValueError("singular: expected one flag (true or false) per row")
+        self.singular = self.singular.astype(bool)
+        if (self.X.ndim != 2 or self.singular.ndim != 1 or self.X.shape[0] != self.singular.shape[0]
+                or not self.singular.any()):
             raise ValueError("X, singular: the table needs one flag per row and at least one singular row")
+        if self.X.shape[1] != N_FEATURES:
+            raise ValueError(f"X: the table's features have shape {self.X.shape}, expected ({self.X.shape[0]}, "
+                             f"{N_FEATURES}) (the full-attitude canonical features)")
         self.T, self.T_eig = np.asarray(T, float), np.asarray(T_eig, float)
         self.U, self.S = np.asarray(U, float), np.asarray(S, float)
         if not np.all(np.isfinite(self.X)):
@@ -49,15 +57,25 @@ class SingularTable:
         if (self.T.shape != (m,) or self.T_eig.shape != (m,) or self.U.shape != (m, 3) or self.S.ndim != 3
                 or self.S.shape[:2] != (m, 3)):
             raise ValueError(f"T, T_eig, U, S: expected one row per singular problem ({m})")
-        if not (np.all(self.T > 0) and np.all(self.T_eig > 0)):
+        if not (np.all(self.T > 0) and np.all(self.T_eig > 0) and np.all(np.isfinite(self.T))
+                and np.all(np.isfinite(self.T_eig))):
             raise ValueError("T, T_eig: the final times must be positive")
-        self.k, self.vote, self.n_sequences = int(k), float(vote), int(n_sequences)
-        if self.k < 1 or self.n_sequences < 1:
-            raise ValueError(f"k, n_sequences: need at least 1 each, got {self.k} and {self.n_sequences}")
-        if not 0.0 < self.vote <= 1.0:
-            raise ValueError(f"vote: the share of singular neighbours must be in (0, 1], got {self.vote}")
+        check_signs(self.U)
+        # k: neighbours of the vote, at most the table's rows; n_sequences: the nearest singular
+        # answers tried, each mapped to the problem up front (fewer singular rows: all of them)
+        self.k = checked_neighbours(k, self.X.shape[0])
+        self.n_sequences = checked_neighbours(n_sequences, MAX_NEIGHBOURS, "n_sequences", "sequences")
+        if not (_is_number(vote) and 0.0 < float(vote) <= 1.0):
+            raise ValueError(f"vote: the share of singular neighbours must be a number in (0, 1], got {vote!r}"[:200])
+        self.vote = float(vote)
+        if not (_is_number(tf_rel_tol) and (math.isnan(tf_rel_tol) or 0.0 <= float(tf_rel_tol) < 1.0)):
+            raise ValueError(f"tf_rel_tol: expected a number in [0, 1) (or NaN: not measured), got {tf_rel_tol!r}"[:200])
         self.tf_rel_tol = float(tf_rel_tol)
-        self.domain, self.training, self.name = domain or {}, training or {}, name
+        if training is not None and not isinstance(training, dict):
+            raise ValueError(f"training: expected a JSON object, got {training!r}"[:200])
+        if not isinstance(name, str):
+            raise ValueError(f"name: expected text, got {name!r}"[:200])
+        self.domain, self.training, self.name = checked_domain(domain), training or {}, name
         self.scale = np.maximum(self.X.std(axis=0), 1e-3)
         self.tree = cKDTree(self.X / self.scale)
         self.tree_singular = cKDTree(self.X[self.singular] / self.scale)
@@ -67,9 +85,27 @@ class SingularTable:
         path = os.fspath(path)
         d, card = read_table(path, SINGULAR_FORMAT, SINGULAR_FORMAT_VERSION)
         try:
-            return cls(d["X"], d["singular"], d["T"], d["T_eig"], d["U"], d["S"], k=card["k"], vote=card["vote"],
-                       n_sequences=card["n_sequences"], tf_rel_tol=card.get("tf_rel_tol", float("nan")),
-                       domain=card.get("domain"), training=card.get("training"), name=card.get("name", "singular table"))
+            # the card's fields by name first (``card.k``, ...), then the arrays
+            k = card_whole(card, "k", 1, MAX_NEIGHBOURS, why=NEIGHBOURS_WHY)
+            checked_neighbours(k, table_rows(d), "card.k")
+            n_sequences = card_whole(card, "n_sequences", 1, MAX_NEIGHBOURS,
+                                     why=" (each is mapped to the problem before its optimisation starts)")
+            if "vote" not in card:
+                raise ModelFileError("card.vote: missing")
+            vote = card["vote"]
+            if not (_is_number(vote) and 0.0 < float(vote) <= 1.0):
+                raise ModelFileError(f"card.vote: the share of singular neighbours must be a number in (0, 1], "
+                                     f"got {vote!r}"[:300])
+            tf_rel_tol = card.get("tf_rel_tol", float("nan"))
+            if not (_is_number(tf_rel_tol) and (math.isnan(tf_rel_tol) or 0.0 <= float(tf_rel_tol) < 1.0)):
+                raise ModelFileError(f"card.tf_rel_tol: expected a number in [0, 1) (or NaN: not measured), got "
+                                     f"{tf_rel_tol!r}"[:300])
+            training = card.get("training")
+            if training is not None and not isinstance(training, dict):
+                raise ModelFileError(f"card.training: expected a JSON object, got {training!r}"[:300])
+            return cls(d["X"], d["singular"], d["T"], d["T_eig"], d["U"], d["S"], k=k, vote=vote,
+                       n_sequences=n_sequences, tf_rel_tol=tf_rel_tol, domain=checked_domain(card.get("domain")),
+                       training=training, name=card_text(card, "name", "singular table"))
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFileError(f"model: {path} is not a usable singular table ({e})") from None
 
