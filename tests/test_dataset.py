@@ -82,8 +82,8 @@ def test_to_arrays(tmp_path):
 
 
 @pytest.mark.parametrize("tail", [b'{"index": 4, "family": "full-att',     # killed mid-write: no newline
-                                  b'{"index": 4, "fam\n',                     # torn line with its newline
                                   b"\x00\x00\x00\x00"])                       # zero-filled tail
+# (a line with its newline that does not parse is corruption, even the last: test_dataset_last_line.py)
 def test_partial_last_line_truncated_on_resume(tmp_path, tail):
     p = tmp_path / "d.jsonl"
     with DatasetWriter(p, _meta()) as w:

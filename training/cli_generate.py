@@ -13,8 +13,10 @@ Problem ``i`` is the family's task distribution sampled with
 ``method="auto"``: collocation first, then the exact refinement; no learned warm start) and
 appended to the JSON Lines file ``-o`` as soon as it completes. Running the
 same command again continues an interrupted (even SIGKILLed) run: indices already in the
-file are skipped; a partial last line is cut away. A file generated with another family,
-seed or distribution is refused, and so is an existing file that is not a dataset.
+file are skipped; a partial last line (no newline after it) is cut away, while a line that ends
+with its newline but does not parse, even the last, is refused as corruption. A file generated
+with another family, seed or distribution is refused, and so is an existing file that is not a
+dataset, and ``--family-options`` under which no problem can be drawn.
 
 Exit code: 0 when every index ``0 .. n-1`` is in the file (failure records included),
 1 when some are missing (a worker died, or the run did not finish: run the command again),
@@ -74,7 +76,7 @@ def _json_object(text, flag):
 
 
 def build_spec(args):
-    from .generate import DEFAULT_SOLVE_FN, GenerationSpec
+    from .generate import DEFAULT_SOLVE_FN, GenerationSpec, UnsampleableError
 
     if args.family not in FAMILY_CHOICES:
         raise ValueError(f"--family: unknown family {args.family!r}; choose one of {', '.join(FAMILY_CHOICES)}")
@@ -102,6 +104,9 @@ def build_spec(args):
                               solve_fn=args.solve_fn or DEFAULT_SOLVE_FN, solve_options=opts)
     except TypeError as e:   # an unknown TaskDistribution field
         raise ValueError(f"--family-options: {e}") from None
+    except UnsampleableError as e:   # checked before the file is opened: no record is written
+        raise ValueError(f"--family-options: no problem can be drawn with {json.dumps(overrides)}: "
+                         f"{e.reason}") from None
 
 
 def run(args):

@@ -22,17 +22,24 @@ Batch::
 
     slew solve --batch PROBLEMS.jsonl -o SOLUTIONS.jsonl [--workers N] [--dense] [...]
 
-One problem per line (blank lines skipped), one solution per line in the same order,
-each with a ``"line"`` key (1-based line number in the input). A line that does not
-validate gives ``{"line": k, "success": false, "status": -1, "message": "..."}`` and the
-batch goes on (an unexpected exception in the solver gives the same record with status -2
-and a message starting "internal error"). Dense samples are left out unless ``--dense``. ``--workers N > 1`` solves
-in a process pool (spawned workers; each pays the import of ``solvers`` once).
-Exit code: 0 when every line was solved, 1 otherwise, 2 on bad options or an unreadable
-batch file.
+One problem per line (blank lines skipped), one solution per line, each with a ``"line"``
+key (1-based line number in the input), written as soon as its problem is solved: in the
+order of the input with one worker, in the order the problems finish with ``--workers N > 1``
+(a process pool of spawned workers; each pays the import of ``solvers`` once). A line that
+does not validate gives ``{"line": k, "success": false, "status": -1, "message": "..."}`` and
+the batch goes on (an unexpected exception in the solver gives the same record with status -2
+and a message starting "internal error"). Dense samples are left out unless ``--dense``.
+Ctrl-C or SIGTERM stops the batch after the problem(s) in hand (a second Ctrl-C at once, the
+solves it cuts not recorded); every finished record stays in the file (written one whole line
+at a time, as ``slew generate`` writes: ``training.batch_output``), and the same command with
+``--resume`` solves only the input lines that have no record in it yet.
+Exit code: 0 when every line was solved, 1 otherwise, 130 on Ctrl-C and 143 on SIGTERM,
+2 on bad options or an unreadable batch file.
 
-Output files are written atomically: a temporary file in the same directory, renamed over
-the target only when complete, so an interrupted run never leaves a half-written file.
+An existing output file is overwritten (batch: unless ``--resume``); an output that is one of
+the inputs (the problem or batch file, the warm-start model) is refused before solving. A
+single solution is written atomically (a temporary file renamed over the target when
+complete), so an interrupted run never leaves half of it.
 """
 from __future__ import annotations
 
@@ -57,7 +64,12 @@ def add_arguments(p):
     p.add_argument("--batch", metavar="PROBLEMS.jsonl",
                    help="solve every problem of a JSON-lines file (one problem per line) instead")
     p.add_argument("-o", "--output", metavar="FILE",
-                   help="write the solution JSON here (batch: JSON lines; required); '-' for stdout")
+                   help="write the solution JSON here (batch: JSON lines, one record written as each problem is "
+                        "solved; required); '-' for stdout. An existing file is overwritten (batch: unless "
+                        "--resume); an input file (the problem, the batch, the model) is refused")
+    p.add_argument("--resume", action="store_true",
+                   help="batch: continue an interrupted batch: keep the records already in -o and solve only the "
+                        "input lines that have none (each record names its input line)")
     p.add_argument("--method", default="auto", metavar="METHOD",
                    help=f"solver: {' | '.join(METHOD_CHOICES)} (default auto)")
     p.add_argument("--segments", type=int, metavar="N",
@@ -208,24 +220,41 @@ class AtomicWriter:
         return self._f
 
     def __exit__(self, exc_type, exc, tb):
+        try:
+            self._finish(exc_type is None)
+        except OSError as e:
+            raise self._error(e) from None
+        if exc_type is not None and issubclass(exc_type, OSError):
+            # a write in the block failed (-o /dev/full: ENOSPC): name -o and the path, not just errno
+            raise self._error(exc) from None
+        return False
+
+    def _error(self, e):
+        where = "stdout" if self.path == "-" else repr(self.path)
+        return ValueError(f"-o: cannot write to {where}: {e.strerror or e}")
+
+    def _finish(self, ok):
         if self.path == "-":
             sys.stdout.flush()
-            return False
+            return
         if getattr(self, "_special", False):
             self._f.close()
-            return False
+            return
         try:
-            if exc_type is None:
+            if ok:
                 self._f.flush()
                 os.fsync(self._f.fileno())
-            self._f.close()
-            if exc_type is None:
+            try:
+                self._f.close()
+            except OSError:
+                if ok:
+                    raise
+            if ok:
                 os.replace(self._tmp, self._target)
                 self._tmp = None
         finally:
             if self._tmp is not None and os.path.exists(self._tmp):
                 os.remove(self._tmp)
-        return False
 
 
 def _fmt_tf(x):
@@ -315,9 +344,17 @@ def _run_single(args, opts):
         raise ValueError("--workers: only with --batch")
     if args.repeat < 0:
         raise ValueError(f"--repeat: must be ≥ 0, got {args.repeat}")
+    if getattr(args, "resume", False):
+        raise ValueError("--resume: only with --batch")
     text = _read_text(args.problem, "problem")
     prob = SlewProblem.from_json(text)
     dense = args.dense is not False
+    sensor_png = None
+    if args.plot and (prob.cones or prob.sensor_target is not None):
+        # its second figure: checked before solving too, and named in its own errors (a fuzz run:
+        # FIG-sensor.png a directory was reported as "cannot write 'FIG.png'", which was written)
+        sensor_png = _sensor_figure_path(args.plot)
+        _check_writable(sensor_png, "--plot (its sensor figure)")
     sol = solve(prob, method=args.method, **opts)
     out = sys.stderr if args.output == "-" else sys.stdout
     print(f"problem       {args.problem}: {prob!r}", file=out)
@@ -349,19 +386,25 @@ def _run_single(args, opts):
         print("solution      not written (use -o SOLUTION.json)", file=out)
     if args.plot:
         from solvers.plotting import plot_sensor_path, plot_solution
-        try:
-            plot_solution(sol, args.plot)
-            print(f"figure        written to {args.plot}", file=out)
-            if sol.problem.cones or sol.problem.sensor_target is not None:
-                root, ext = os.path.splitext(args.plot)
-                sensor_png = f"{root}-sensor{ext or '.png'}"
-                plot_sensor_path(sol, sensor_png)
-                print(f"figure        written to {sensor_png} (sensor path, cones, clearance)", file=out)
-        except ValueError as e:
-            print(f"figure        not written: {e}", file=out)
-        except OSError as e:
-            raise ValueError(f"--plot: cannot write {args.plot!r}: {e.strerror or e}") from None
+        figures = [(plot_solution, args.plot, "")]
+        if sensor_png is not None:
+            figures.append((plot_sensor_path, sensor_png, " (sensor path, cones, clearance)"))
+        for plot, path, what in figures:
+            try:
+                plot(sol, path)
+            except ValueError as e:
+                print(f"figure        not written: {e}", file=out)
+                break
+            except OSError as e:      # names the figure that failed, not always the main one
+                raise ValueError(f"--plot: cannot write {path!r}: {e.strerror or e}") from None
+            print(f"figure        written to {path}{what}", file=out)
     return 0 if sol.success else 1
+
+
+def _sensor_figure_path(plot):
+    """``FIG-sensor.png`` of ``--plot FIG.png``: the sensor path of pointing and cone problems."""
+    root, ext = os.path.splitext(plot)
+    return f"{root}-sensor{ext or '.png'}"
 
 
 # --------------------------------------------------------------------------- batch
@@ -392,12 +435,17 @@ def _batch_items(path):
 
 
 class _StopRequest:
-    """While active, Ctrl-C (SIGINT) and SIGTERM only ask the batch to stop after the problem
+    """While active, Ctrl-C (SIGINT) and SIGTERM only ask the batch to stop after the problem(s)
     in hand: raised inside a solve, they were swallowed by IPOPT, or came out of compiled code
-    as a ``SystemError`` written down as a failed problem. A second Ctrl-C stops at once."""
+    as a ``SystemError`` written down as a failed problem. A second Ctrl-C stops at once
+    (``forced``): inside a solve in this process (``cuttable``) it raises ``KeyboardInterrupt``
+    there; elsewhere (between records, the pool's parent) the loop sees the flag, so that the
+    interrupt never lands inside a record's write."""
 
     def __init__(self):
         self.signal = None
+        self.forced = False
+        self.cuttable = False
         self._old = {}
 
     def __enter__(self):
@@ -407,15 +455,15 @@ class _StopRequest:
         return self
 
     def _handle(self, signum, frame):
-        if self.signal is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        self.signal = signum
-        print("\nslew solve: stopping after the problem in hand (Ctrl-C again to stop now)",
-              file=sys.stderr, flush=True)
-
-    def check(self):
         if self.signal is not None:
-            raise KeyboardInterrupt
+            if signum == signal.SIGINT:
+                self.forced = True
+                if self.cuttable:
+                    raise KeyboardInterrupt
+            return
+        self.signal = signum
+        print("\nslew solve: stopping after the problem(s) in hand; finished records are kept "
+              "(Ctrl-C again to stop now)", file=sys.stderr, flush=True)
 
     def __exit__(self, *exc):
         for s, h in self._old.items():
@@ -428,7 +476,26 @@ def _ignore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+class _Tally:
+    """Solved / not solved / invalid counts over the records of the output (earlier runs' too)."""
+
+    def __init__(self):
+        self.ok = self.bad_input = 0
+
+    def add(self, d):
+        if d.get("success"):
+            self.ok += 1
+        elif d.get("status") == BAD_LINE_STATUS:
+            self.bad_input += 1
+
+
 def _run_batch(args, opts):
+    from concurrent.futures.process import BrokenProcessPool
+
+    from tqdm import tqdm
+
+    from .batch_output import BatchOutput
+
     if args.problem:
         raise ValueError("give either PROBLEM.json or --batch PROBLEMS.jsonl, not both")
     if not args.output:
@@ -437,97 +504,153 @@ def _run_batch(args, opts):
         raise ValueError("--plot: only for a single problem, not with --batch")
     if args.workers < 1:
         raise ValueError(f"--workers: must be a positive integer, got {args.workers}")
-    from tqdm import tqdm
 
     items = _batch_items(args.batch)
     dense = args.dense is True
     t0 = time.perf_counter()
-    n_ok = n_bad_input = 0
-    bar = tqdm(total=len(items), file=sys.stderr, unit="problem", desc="slew solve",
-               disable=args.no_progress, dynamic_ncols=True)
-
-    def account(rec):
-        nonlocal n_ok, n_bad_input
-        d = json.loads(rec)
-        if d.get("success"):
-            n_ok += 1
-        elif d.get("status") == BAD_LINE_STATUS:
-            n_bad_input += 1
-
-    stop = _StopRequest()
-    try:
-        with stop, AtomicWriter(args.output) as f:
-            if args.workers == 1 or len(items) <= 1:
-                for k, line in items:
-                    stop.check()
-                    rec = solve_line(k, line, args.method, opts, dense)
-                    f.write(rec + "\n")
-                    account(rec)
-                    bar.update(1)
-            else:
-                _batch_pool(items, args, opts, dense, f, account, bar, stop)
-    except KeyboardInterrupt:
-        bar.close()
-        what = "stdout output incomplete" if args.output == "-" else f"{args.output} not written"
-        print(f"slew solve: interrupted; {what}", file=sys.stderr)
-        return 143 if stop.signal == signal.SIGTERM else 130
-    finally:
-        bar.close()
-    n = len(items)
-    n_fail = n - n_ok - n_bad_input
-    out = sys.stderr if args.output == "-" else sys.stdout
+    tally = _Tally()
     where = "stdout" if args.output == "-" else args.output
-    print(f"{n} problem(s): {n_ok} solved, {n_fail} not solved, {n_bad_input} invalid; "
-          f"{time.perf_counter() - t0:.2f} s; written to {where}", file=out)
-    return 0 if n_ok == n else 1
+    with BatchOutput(args.output, resume=getattr(args, "resume", False), lines=[k for k, _ in items]) as out:
+        for d in out.done.values():
+            tally.add(d)
+        if out.truncated_bytes:
+            print(f"{args.output}: cut away a partial last line ({out.truncated_bytes} bytes) left by an "
+                  "interrupted run", file=sys.stderr)
+        todo = [(k, line) for k, line in items if k not in out.done]
+        bar = tqdm(total=len(items), initial=len(items) - len(todo), file=sys.stderr, unit="problem",
+                   desc="slew solve", disable=args.no_progress, dynamic_ncols=True)
+
+        def write(rec):
+            out.write(rec)
+            tally.add(json.loads(rec))
+            bar.update(1)
+
+        stop = _StopRequest()
+        broken = None
+        try:
+            with stop:
+                if args.workers == 1 or len(todo) <= 1:
+                    _batch_serial(todo, args, opts, dense, write, stop)
+                else:
+                    _batch_pool(todo, args, opts, dense, write, stop)
+        except KeyboardInterrupt:
+            pass
+        except BrokenProcessPool as e:   # a worker died (killed, a crash in compiled code)
+            broken = e
+        finally:
+            bar.close()
+    n = len(items)
+    if out.count < n:      # stopped by a signal (or a dead worker) before the end
+        how = (f"a worker process died ({broken})" if broken is not None and stop.signal is None else
+               f"interrupted ({signal.Signals(stop.signal or signal.SIGINT).name})")
+        left = n - out.count
+        if out.resumable:
+            hint = f"; run the same command with --resume to solve the {left} line(s) left"
+        else:
+            hint = f", {left} line(s) not solved ({where} cannot be resumed: use -o FILE for that)"
+        print(f"slew solve: {how}: {out.count} of {n} record(s) in {where} ({out.written} written by this "
+              f"run){hint}", file=sys.stderr)
+        if broken is not None and stop.signal is None:
+            return 1
+        return 143 if stop.signal == signal.SIGTERM else 130
+    n_fail = n - tally.ok - tally.bad_input
+    before = f" ({len(out.done)} already in {where})" if out.done else ""
+    summary_to = sys.stderr if args.output == "-" else sys.stdout
+    print(f"{n} problem(s): {tally.ok} solved, {n_fail} not solved, {tally.bad_input} invalid{before}; "
+          f"{time.perf_counter() - t0:.2f} s; written to {where}", file=summary_to)
+    return 0 if tally.ok == n else 1
 
 
-def _batch_pool(items, args, opts, dense, f, account, bar, stop):
-    """Process pool; a bounded window of tasks in flight; records written in input order."""
+def _batch_serial(todo, args, opts, dense, write, stop):
+    """In this process, in input order; stops before the next problem once a stop is asked."""
+    for k, line in todo:
+        if stop.signal is not None:
+            return
+        stop.cuttable = True
+        try:
+            rec = solve_line(k, line, args.method, opts, dense)
+        finally:
+            stop.cuttable = False
+        if stop.forced:
+            # a second Ctrl-C during the solve, which the route may have swallowed and ended as a
+            # failure: not recorded (a --resume solves that line again)
+            raise KeyboardInterrupt
+        write(rec)
+
+
+def _batch_pool(todo, args, opts, dense, write, stop):
+    """Process pool, one problem in flight per worker, each record written as it completes (so
+    in completion order: every record names its input line). Once a stop is asked, no problem
+    is submitted and those being solved are waited for and written; a second Ctrl-C ends the
+    workers at once, their solves not recorded."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    window = 4 * args.workers
+    # no more in flight than workers: the executor marks every submitted call it has queued as
+    # running, and a running call cannot be cancelled, so a larger window made a stop wait for
+    # problems that had not started (a worker idles only for the parent's write and submit)
+    window = args.workers
     ctx = multiprocessing.get_context("spawn")
-    done_recs = {}
-    next_write = 0
-    pending = {}
-    it = iter(enumerate(items))
+    queue = iter(todo)
+    pending = set()
     ex = ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx, initializer=_ignore_sigint)
     try:
-        exhausted = False
         while True:
-            stop.check()
-            while not exhausted and len(pending) < window:
-                try:
-                    idx, (k, line) = next(it)
-                except StopIteration:
-                    exhausted = True
+            while stop.signal is None and len(pending) < window:
+                item = next(queue, None)
+                if item is None:
                     break
-                pending[ex.submit(solve_line, k, line, args.method, opts, dense)] = idx
+                pending.add(ex.submit(solve_line, *item, args.method, opts, dense))
+            if stop.forced:
+                raise KeyboardInterrupt
             if not pending:
                 break
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            # (a timeout: the loop must see a stop request while every worker is busy)
+            finished, _ = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
             for fut in finished:
-                idx = pending.pop(fut)
-                done_recs[idx] = fut.result()
-                bar.update(1)
-            while next_write in done_recs:
-                rec = done_recs.pop(next_write)
-                f.write(rec + "\n")
-                account(rec)
-                next_write += 1
-    except BaseException:   # Ctrl-C or a write error: drop the queued work, keep no half file
+                pending.discard(fut)
+                write(fut.result())
+    except BaseException:
+        # (the solves in flight are not recorded: their workers are ended now; left alone, the
+        # interpreter's exit would wait for each to finish its solve)
+        for proc in list((getattr(ex, "_processes", None) or {}).values()):
+            proc.terminate()
         ex.shutdown(wait=False, cancel_futures=True)
         raise
     ex.shutdown(wait=True)
 
 
 # --------------------------------------------------------------------------- entry
+def _same_file(a, b):
+    try:
+        return os.path.samefile(a, b)
+    except OSError:            # (one of them does not exist yet)
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _refuse_inputs_as_outputs(args, opts):
+    """An output that is one of the inputs would destroy it: refused before anything is solved or
+    opened for writing (a fuzz run: ``--batch P.jsonl -o P.jsonl`` left only the solutions, and
+    the text of an invalid line was lost for good)."""
+    inputs = [("--batch", args.batch), ("PROBLEM.json", args.problem)]
+    if isinstance(opts.get("warm_start"), str) and os.path.exists(opts["warm_start"]):
+        inputs.append(("--warm-start", opts["warm_start"]))
+    outputs = [(flag, path) for flag, path in (("-o", args.output), ("--plot", args.plot))
+               if path and path != "-"]
+    for flag, path in outputs:
+        for in_flag, in_path in inputs:
+            if in_path and _same_file(path, in_path):
+                raise ValueError(f"{flag}: {path!r} is the input file {in_path!r} ({in_flag}); writing there "
+                                 "would destroy it: give another output file")
+    if len(outputs) == 2 and _same_file(args.output, args.plot):
+        raise ValueError(f"--plot: {args.plot!r} is the -o file too; the figure would replace the solution")
+
+
 def run(args):
     opts = _solve_options(args)
     _check_writable(args.output, "-o")
     _check_writable(args.plot, "--plot")
+    _refuse_inputs_as_outputs(args, opts)
     if args.batch:
         return _run_batch(args, opts)
     if not args.problem:

@@ -12,8 +12,10 @@ File format (``docs/DATASET.md`` has the full description)::
   keyed by its ``index``. Records appear in completion order, not index order.
 * Each record line is written with one ``os.write`` of the whole line on a file opened
   ``O_APPEND`` (then ``fsync``), so a process killed at any instant leaves at most one
-  partial last line. Opening a file for appending (``DatasetWriter``) truncates such a
-  partial (or unparsable) last line away; readers (``read``, ``load``) ignore it.
+  partial last line: bytes with no newline after them. Opening a file for appending
+  (``DatasetWriter``) truncates such a partial last line away; readers (``read``, ``load``)
+  ignore it. A line that ends with its newline but does not parse is corruption wherever it
+  is, the last line included: it was not cut short by a killed run, so it is refused, not cut.
 * Appending is refused when the file's metadata differs from the run's in ``format``,
   ``version``, ``family``, ``seed`` or ``distribution`` (``DatasetMismatchError``). A run
   holds an exclusive ``flock`` on the file, so two runs never append to one file.
@@ -48,6 +50,17 @@ class DatasetError(ValueError):
 
 class DatasetMismatchError(DatasetError):
     """The file was generated with another family / seed / distribution / format."""
+
+
+class CorruptLineError(DatasetError):
+    """A complete line (it ends with its newline) that is not valid JSON; ``lineno`` is 1-based."""
+
+    def __init__(self, message, lineno):
+        super().__init__(message)
+        self.lineno = lineno
+
+    def __reduce__(self):
+        return type(self), (str(self), self.lineno)
 
 
 # --------------------------------------------------------------------------- JSON helpers
@@ -96,24 +109,44 @@ class _Scan:
         self.partial_tail = b""      # trailing bytes after the valid prefix (partial last line)
 
 
-def _scan_bytes(data: bytes, path) -> _Scan:
-    s = _Scan()
+def json_lines(data: bytes, path) -> tuple:
+    """``([(line number, parsed JSON), ...], end)`` of the complete lines of JSON Lines bytes;
+    ``end`` is the length of those lines, and ``data[end:]`` the partial last line, if any.
+
+    Only bytes after the last newline count as a partial line: a writer puts each line and its
+    newline in one ``os.write``, so a run killed at any instant leaves nothing else. A line that
+    ends with its newline and does not parse was not left by a killed run, even the last one (a
+    fuzz run: a hand-edited last line was cut away as "a partial last line"), so it is
+    corruption: a ``CorruptLineError`` naming its line, and the caller repairs nothing. Shared by
+    the dataset writer and the output of ``slew solve --batch`` (``training.batch_output``).
+    """
+    end = data.rfind(b"\n") + 1
+    out = []
     pos = 0
     lineno = 0
-    n = len(data)
-    while pos < n:
-        nl = data.find(b"\n", pos)
+    while pos < end:
+        nl = data.index(b"\n", pos)
         lineno += 1
-        if nl < 0:                   # no newline: a partial last line (killed mid-write)
-            break
-        raw = data[pos:nl]
         try:
-            obj = json.loads(raw.decode("utf-8"))
+            out.append((lineno, json.loads(data[pos:nl].decode("utf-8"))))
         except (UnicodeDecodeError, json.JSONDecodeError) as e:
-            if nl + 1 >= n:          # the last line: unparsable, treated as a partial write
-                break
-            raise DatasetError(f"{path}: line {lineno} is not valid JSON ({e}); the file is corrupt "
-                               "in the middle, not at the end, so it is not repaired automatically") from None
+            raise CorruptLineError(f"{path}: line {lineno} is not valid JSON ({e}); it ends with its newline, so "
+                                   "it is not a write cut short by an interrupted run: the file is corrupt there and "
+                                   "is not repaired automatically (fix or remove that line)", lineno) from None
+        pos = nl + 1
+    return out, end
+
+
+def _scan_bytes(data: bytes, path) -> _Scan:
+    s = _Scan()
+    try:
+        lines, s.good_bytes = json_lines(data, path)
+    except CorruptLineError as e:
+        if e.lineno == 1:       # no metadata line: notes or a problem file given by mistake
+            raise DatasetError(f"{path}: not a slew dataset file (line 1 is not JSON, let alone a metadata "
+                               "line)") from None
+        raise
+    for lineno, obj in lines:
         if not isinstance(obj, dict):
             raise DatasetError(f"{path}: line {lineno} is not a JSON object")
         if lineno == 1:
@@ -130,8 +163,6 @@ def _scan_bytes(data: bytes, path) -> _Scan:
             if not isinstance(idx, int) or isinstance(idx, bool) or idx < 0:
                 raise DatasetError(f"{path}: line {lineno}: record without a valid 'index' ({idx!r})")
             s.records.append(obj)
-        pos = nl + 1
-        s.good_bytes = pos
     s.partial_tail = data[s.good_bytes:]
     return s
 
@@ -248,12 +279,38 @@ def to_arrays(records: Iterable[dict], max_switches: Optional[int] = None) -> di
 
 
 # --------------------------------------------------------------------------- writing
-def _write_all(fd, data: bytes):
+def write_all(fd, data: bytes):
     """``os.write`` until every byte is out (one call in practice for regular files)."""
     view = memoryview(data)
     while view:
         k = os.write(fd, view)
         view = view[k:]
+
+
+def read_fd(fd) -> bytes:
+    """The whole content of an open file (``pread``: the offset of an ``O_APPEND`` fd does not matter)."""
+    data = b""
+    while True:
+        chunk = os.pread(fd, 1 << 24, len(data))
+        if not chunk:
+            return data
+        data += chunk
+
+
+def lock_exclusive(fd, path) -> None:
+    """Take an exclusive ``flock`` on ``fd`` for as long as it is open, or raise ``DatasetError``
+    at once when another process holds it: two runs never append to one file."""
+    try:
+        import fcntl
+    except ImportError:   # not POSIX: no lock
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as e:
+        if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise DatasetError(f"{path}: another process is writing this file "
+                               "(it holds the lock); wait for it or use another output") from None
+        raise
 
 
 def _create_with_meta(path, meta):
@@ -267,7 +324,7 @@ def _create_with_meta(path, meta):
     except OSError as e:      # (the temporary file's name is not one the user gave)
         raise DatasetError(f"{path}: cannot create the file in {d!r}: {e.strerror or e}") from None
     try:
-        _write_all(fd, dumps_line({META_KEY: meta}))
+        write_all(fd, dumps_line({META_KEY: meta}))
         os.fsync(fd)
         os.close(fd)
         fd = -1
@@ -326,19 +383,20 @@ class DatasetWriter:
         except OSError as e:
             raise DatasetError(f"{self.path}: cannot open for appending: {e.strerror or e}") from None
         try:
-            self._lock(fd)
-            data = b""
-            while True:
-                chunk = os.pread(fd, 1 << 24, len(data))
-                if not chunk:
-                    break
-                data += chunk
-            scan = _scan_bytes(data, self.path)
+            lock_exclusive(fd, self.path)
+            data = read_fd(fd)
             head = b'{"' + META_KEY.encode() + b'"'
-            if scan.meta is None and data and not (data.startswith(head) or head.startswith(data)):
-                # no metadata line, but content that does not begin one: not a dataset — a JSON
-                # file or notes given as -o by mistake, which cutting the "partial line" away
-                # would destroy (a run killed while writing the metadata leaves its beginning)
+            try:
+                scan = _scan_bytes(data, self.path)
+            except DatasetError:
+                scan = None
+                if not data or data.startswith(head):
+                    raise        # a dataset, corrupt: the scan's error names the line
+            if (scan is None or scan.meta is None) and data and not (data.startswith(head)
+                                                                     or head.startswith(data)):
+                # content that does not begin a metadata line: not a dataset — a JSON file or
+                # notes given as -o by mistake, which cutting a "partial line" away would destroy
+                # (a run killed while writing the metadata leaves its beginning, accepted here)
                 raise DatasetError(f"{self.path}: not a slew dataset file (its {len(data)} byte(s) hold no "
                                    f"{{\"{META_KEY}\": {{...}}}} metadata line); refusing to append to it or "
                                    "overwrite it: give another output file")
@@ -349,7 +407,7 @@ class DatasetWriter:
                 self.truncated_bytes = len(scan.partial_tail)
             if scan.meta is None:
                 # an empty file (or only a partial metadata line, now truncated): write the metadata
-                _write_all(fd, dumps_line({META_KEY: meta}))
+                write_all(fd, dumps_line({META_KEY: meta}))
                 os.fsync(fd)
                 self.meta = meta
             else:
@@ -366,19 +424,6 @@ class DatasetWriter:
             raise
         self.fd = fd
 
-    def _lock(self, fd):
-        try:
-            import fcntl
-        except ImportError:   # not POSIX: no lock
-            return
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise DatasetError(f"{self.path}: another process is writing this file "
-                                   "(it holds the lock); wait for it or use another output") from None
-            raise
-
     def append(self, record: dict) -> None:
         if self.fd < 0:
             raise DatasetError(f"{self.path}: writer is closed")
@@ -389,7 +434,7 @@ class DatasetWriter:
             raise DatasetError(f"{self.path}: index {idx} is already in the file")
         if META_KEY in record:
             raise DatasetError(f"record: must not contain {META_KEY!r}")
-        _write_all(self.fd, dumps_line(record))
+        write_all(self.fd, dumps_line(record))
         # (in the file from here on: a signal during the fsync must not leave it counted as missing)
         self.done[idx] = record.get("success") is True
         if self.fsync:

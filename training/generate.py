@@ -53,6 +53,13 @@ GENERATOR_STATUS_MESSAGES = {
     STATUS_UNVERIFIED: "Claimed success without a complete, passed verification.",
 }
 
+
+class UnsampleableError(ValueError):
+    """The family with its overrides gives no problem at all (``slew generate`` names --family-options)."""
+
+    reason = ""     # the sampler's own words, without the overrides
+
+
 DEFAULT_SOLVE_FN = "training.generate:solve_default"
 WARM_SOLVE_FN = "training.generate:solve_warm"
 # the most problems one run generates: its indices and the missing ones are lists in memory (a
@@ -92,6 +99,18 @@ class GenerationSpec:
         if ":" not in self.solve_fn:
             raise ValueError(f"solve_fn: expected 'module:function', got {self.solve_fn!r}")
         self.distribution()   # validates family and overrides now, with the TaskDistribution's errors
+        if self.overrides:
+            # overrides can be valid field by field and still leave no problem to draw (50 cones
+            # that cannot all be placed): every index would become a sampling failure record, kept
+            # for good by a resumed run (a fuzz run: exit 0 with a dataset of rejections). Index 0
+            # is drawn now, as the run would; the families themselves are known to sample
+            try:
+                problem_for(self, 0)
+            except (RuntimeError, ValueError) as e:
+                err = UnsampleableError(f"overrides {json.dumps(self.overrides, default=str)}: no problem can "
+                                        f"be drawn from this distribution: {e}")
+                err.reason = str(e)
+                raise err from None
         if self.solve_fn in (DEFAULT_SOLVE_FN, WARM_SOLVE_FN):
             # bad options would otherwise become a rejection record at every index, kept for
             # good by a resumed run (a fuzz run: exit 0 with a dataset of rejections)
