@@ -481,7 +481,8 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         # structure (milliseconds) first; its continuation candidates after collocation, unless
         # collocation shows a singular arc, where they cannot converge (``auto_route.solve_auto``)
         split = method == "auto" and switch_time_applies(prob)
-        warm, info, later = warm_routes.try_warm_start(prob, method, warm_start, options, split=split)
+        warm, info, later = warm_routes.try_warm_start(prob, method, warm_start, options, split=split,
+                                                       table_reserve=method == "auto" and use_table)
         if warm is not None and warm.success:
             if method == "auto" and check_local:
                 warm = warm_routes.challenge_learned_answer(prob, warm, info, col_opts, options, t0)

@@ -172,18 +172,31 @@ class EigenaxisLeg:
 # reach the target within this (``record_check``). The exact profile meets the boundary to 1e-8,
 # but where the body has a gyroscopic term its torque is quadratic in t between the samples, and
 # the small acceleration steps of a profile of more than ``ALL_BREAKS_MAX`` pieces fall between
-# them: the record misses by up to ~2e-6 rad on the default profiles (60 random bodies, per-axis
-# and 2-norm bounds, session 42), 3e-5 on one of 1,001 pieces (a budgeted fallback's can be)
+# them: the record misses by up to ~2e-6 rad on the default profiles of 60 random bodies (per-axis
+# and 2-norm bounds, session 42), and near a half turn by up to 1.25e-4 (a review: 120 slews of
+# 143-180°, some with rate limits), where ``recorded`` doubles the samples; the worst then 8.2e-5
 RECORD_TOL = 1e-4
 # profiles of at most this many pieces list every piece's end in their samples (``samples``)
 ALL_BREAKS_MAX = 1000
+# where the record misses by more than ``RECORD_TOL`` (a long slew riding a rate limit, near a half
+# turn: 1.25e-4 at 2,000 samples, a review), the samples are doubled, at most this many times (the
+# miss falls as the square of their spacing)
+RECORD_MAX_DOUBLINGS = 3
 
 
 def recorded(target, sample_sets, J):
-    """``((td, qd, wd, ud), check)``: the dense samples of a slew, ``sample_sets(N_DENSE)`` (a
-    leg's, or every leg's joined), and their ``record_replay`` check."""
-    samples = sample_sets(N_DENSE)
-    return samples, record_check(target, samples[0], samples[3], J)
+    """``((td, qd, wd, ud), check)``: the dense samples of a slew, ``sample_sets(n)`` giving them
+    at ``n`` uniform instants (a leg's, or every leg's joined): ``N_DENSE``, doubled while flying
+    them misses the target by more than ``RECORD_TOL`` (``RECORD_MAX_DOUBLINGS`` times at most),
+    and the ``record_replay`` check of those returned."""
+    n = N_DENSE
+    for _ in range(RECORD_MAX_DOUBLINGS + 1):
+        samples = sample_sets(n)
+        chk = record_check(target, samples[0], samples[3], J)
+        if chk["passed"]:
+            break
+        n *= 2
+    return samples, chk
 
 
 def record_check(target, td, ud, J):

@@ -385,10 +385,11 @@ def split_continuation(g: Guess):
     return replace(g, candidates=keep), replace(rest[0], candidates=rest[1:])
 
 
-def try_warm_start(prob, method, warm_start, options, split=False):
+def try_warm_start(prob, method, warm_start, options, split=False, table_reserve=False):
     """Try the model's guess alone; returns ``(solution or None, info, later)``: ``later`` is
     ``None`` unless ``split``, then the guess's continuation candidates, not tried here
-    (``split_continuation``)."""
+    (``split_continuation``). ``table_reserve``: the singular table may run after it (``auto``
+    with the table on): under a short budget the candidates leave it ``TABLE_RESERVE``."""
     from . import warmstart
     model = warmstart.resolve(warm_start, prob)
     if model is None:
@@ -433,11 +434,11 @@ def try_warm_start(prob, method, warm_start, options, split=False):
                                               rank=bool(getattr(model, "RANKS_CANDIDATES", False)),
                                               more=float(options.get("_cone_search_more", 1.0)))
     else:
-        if (isinstance(warm_start, str) and warm_start == "default" and total - budget < TABLE_RESERVE
-                and _table_may_answer(prob)):
+        if (table_reserve and isinstance(warm_start, str) and warm_start == "default"
+                and total - budget < TABLE_RESERVE and _table_may_answer(prob)):
             # a short budget that the candidates could use up on a problem the singular table
             # answers (their Newton cannot converge on a singular one): the table's time is kept
-            budget = max(total - TABLE_RESERVE, 0.25 * total)
+            budget = min(budget, max(total - TABLE_RESERVE, 0.25 * total))
         sol = multistart.guess_alone(prob, g, opts, budget, method=ind_method)
     info = {"model": name, "covered": True, "succeeded": bool(sol.success), "candidates": sol.n_candidates,
             "inference_s": t_inf, "guess_s": t_guess, "time_s": time.perf_counter() - t0}

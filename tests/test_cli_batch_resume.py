@@ -157,6 +157,9 @@ def test_resume_into_a_missing_file_starts_it(tmp_path):
     (b'{"line": 1, "success": true}\n{"line": 9, "success": true}\n', "record of input line 9, which holds no"),
     (b'{"line": 1, "success": true}\n{"line": 1, "success": true}\n', "input line 1 has two records"),
     (b'{"line": 1, "success": true}\n{"index": 2}\n', "line 2 is not a record of 'slew solve --batch'"),
+    # a record of another batch's problem under this batch's line 1 (a review: it was kept as done)
+    (json.dumps({"line": 1, "success": True, "problem": dict(_problems(1)[0], inertia=[9, 9, 9])}).encode() + b"\n",
+     "line 1 is the record of another problem than input line 1"),
     (b"PRECIOUS NOTES\n", "not the output of 'slew solve --batch'"),
     (b"PRECIOUS NOTES", "not the output of 'slew solve --batch'"),                       # no newline either
     (b'{"line": 1, "success": true}\nnotes', "are not the beginning of a record; refusing to cut them"),
@@ -172,6 +175,20 @@ def test_resume_refuses_a_file_it_cannot_continue_and_leaves_it(tmp_path, capsys
     assert code == 2 and calls == [] and out.read_bytes() == content
     line = err.strip()
     assert "\n" not in line and line.startswith("slew solve: error: -o: ") and needle in line, err
+
+
+def test_resume_keeps_a_record_of_the_same_problem_written_differently(tmp_path, capsys):
+    # the record's problem is the solver's reading of the line (rate_max as three numbers, every
+    # field spelled out): the same problem, kept as done
+    from slew_env import SlewProblem
+    src, out = tmp_path / "b.jsonl", tmp_path / "o.jsonl"
+    _write_batch(src, _problems(2))
+    rec = {"line": 1, "success": True, "problem": SlewProblem.from_dict(_problems(2)[0]).to_dict()}
+    out.write_text(json.dumps(rec) + "\n")
+    calls = []
+    with _stub_solve_line(_recording_stub(calls)):
+        assert main(["solve", "--batch", str(src), "-o", str(out), "--no-progress", "--resume"]) == 0
+    assert calls == [2] and [r["line"] for r in _records(out)] == [1, 2]
 
 
 @pytest.mark.parametrize("argv, needle", [

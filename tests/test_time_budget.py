@@ -112,7 +112,7 @@ def test_auto_runs_no_route_after_the_learned_stage_spent_the_budget(monkeypatch
     build is not interruptible) does not start; the answer says the budget ran out."""
     from solvers.solution import SlewSolution
 
-    def slow_warm(prob, method, warm_start, options, split=False):
+    def slow_warm(prob, method, warm_start, options, split=False, table_reserve=False):
         time.sleep(0.03)
         failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "candidates stopped", 1, 1, 0.03, problem=prob)
         return failed, {"covered": True, "succeeded": False}, None
@@ -357,7 +357,7 @@ def held_out_singular():
     return p
 
 
-def _learned_budget(monkeypatch, prob, total):
+def _learned_budget(monkeypatch, prob, total, table_reserve=True, **opts):
     """The budget ``try_warm_start`` gives the default model's candidates under ``total``."""
     from solvers.solution import SlewSolution
     seen = []
@@ -366,7 +366,8 @@ def _learned_budget(monkeypatch, prob, total):
         seen.append(budget)
         return SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "stopped", 0, 0, 0.0, problem=p)
     monkeypatch.setattr(multistart, "guess_alone", fake)
-    warm_routes.try_warm_start(prob, "auto", "default", {"time_budget": total}, split=True)
+    warm_routes.try_warm_start(prob, "auto", "default", dict({"time_budget": total}, **opts), split=True,
+                               table_reserve=table_reserve)
     return seen[0]
 
 
@@ -383,6 +384,23 @@ def test_a_short_budget_keeps_the_singular_tables_time(monkeypatch, held_out_sin
     # a problem the table does not answer: the whole short budget
     assert not warm_routes._table_may_answer(FULL)
     assert _learned_budget(monkeypatch, FULL, 0.05) == pytest.approx(0.05)
+    # no table to come (not auto, or singular_table=False): nothing kept; a warm_budget below
+    # what the reserve leaves stays the user's
+    assert _learned_budget(monkeypatch, held_out_singular, 0.05, table_reserve=False) == pytest.approx(0.05)
+    assert _learned_budget(monkeypatch, held_out_singular, 0.016, warm_budget=0.001) == pytest.approx(0.001)
+
+
+def test_the_reserve_is_asked_for_only_where_the_table_can_run(monkeypatch, held_out_singular):
+    seen = []
+
+    def spy(prob, method, warm_start, options, split=False, table_reserve=False):
+        seen.append((method, table_reserve))
+        raise RuntimeError("stop")
+    monkeypatch.setattr(warm_routes, "try_warm_start", spy)
+    for kw in ({}, {"singular_table": False}, {"method": "indirect"}):
+        with pytest.raises(RuntimeError, match="stop"):
+            solvers.solve(held_out_singular, time_budget=0.05, **kw)
+    assert seen == [("auto", True), ("auto", False), ("indirect", False)]
 
 
 def test_no_table_route_starts_with_less_than_its_minimum_left(monkeypatch):
@@ -390,7 +408,7 @@ def test_no_table_route_starts_with_less_than_its_minimum_left(monkeypatch):
     sequence takes ~9 ms) is not started, and the answer says the budget was spent."""
     from solvers.solution import SlewSolution
 
-    def slow_warm(prob, method, warm_start, options, split=False):
+    def slow_warm(prob, method, warm_start, options, split=False, table_reserve=False):
         time.sleep(options["time_budget"] - 0.5 * warm_routes.TABLE_MIN_LEFT)
         failed = SlewSolution(False, STATUS_BUDGET_EXHAUSTED, "candidates stopped", 1, 1, 0.03, problem=prob)
         return failed, {"covered": True, "succeeded": False}, None
@@ -411,11 +429,13 @@ def test_with_an_answer_in_hand_no_sequence_starts_that_would_end_past_the_budge
     from types import SimpleNamespace
     from solvers import switch_time_opt
     started = []
+    clock = [0.0]       # (a clock of its own: a sleep on a busy machine could overshoot by 10 ms)
 
     def fake_optimise(problem, signs0, axes, times, T, time_budget=1.0, max_iter=300, bvp=None):
         started.append(time_budget)
-        time.sleep(0.02)
+        clock[0] += 0.02
         return SimpleNamespace(success=True, T=T * (1.0 - 0.01 * len(started)), nit=1, nfev=1, kkt=1.0)
+    monkeypatch.setattr(switch_time_opt, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
 
     def fake_answer(problem, bvp, r, *a):
         return SimpleNamespace(tf=r.T, route="", guess="", n_candidates=0, nit=0, nfev=0, wall_time=0.0), None

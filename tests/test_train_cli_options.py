@@ -84,3 +84,21 @@ def test_other_bad_options_are_named(tmp_path, capsys, monkeypatch, make, argv, 
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and err.startswith(f"slew train: error: {needle}"), err
     assert (tmp_path / "a_file").read_text() == "keep me" and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("change, pattern", [
+    ({"hidden": [2048, 2048]}, r"^config.hidden: 4,309,035 weights in all, more than the 4,194,304"),
+    ({"hidden": [64] * 70}, r"^config.hidden: expected a list of at most 63 layer widths"),
+    ({"hidden": [64, 0]}, r"^config.hidden: expected a list"),
+    ({"max_switches": 51}, r"^config.max_switches: expected a whole number from 0 to 50"),
+    ({"max_switches": "5"}, r"^config.max_switches: expected a whole number"),
+])
+def test_a_network_no_model_file_may_hold_is_refused_before_training(change, pattern):
+    # a review: hidden [2048, 2048] trained to the end and then failed writing model.npz, whose
+    # loader refuses more than MAX_WEIGHTS weights
+    from training.warmstart.train import load_config
+    with pytest.raises(ValueError, match=pattern):
+        load_config(overrides=change)
+    assert load_config()["hidden"]      # the shipped configs pass
+    from training.warmstart.train import DEFAULT_CONFIG
+    load_config(os.path.join(os.path.dirname(DEFAULT_CONFIG), "pointing-cones.yaml"))

@@ -15,6 +15,7 @@ written straight through; they cannot be read back, so they cannot be resumed.
 """
 from __future__ import annotations
 
+import json
 import os
 import stat
 import sys
@@ -29,12 +30,35 @@ def _begins_a_record(data: bytes) -> bool:
     return data.startswith(RECORD_HEAD) or RECORD_HEAD.startswith(data)
 
 
+def _same_problem(recorded, text) -> bool:
+    """Whether a record's ``problem`` is the problem of the input line ``text`` (both read as
+    ``SlewProblem``s, so that formatting does not matter)."""
+    from slew_env import SlewProblem
+    try:
+        return _close(SlewProblem.from_dict(recorded).to_dict(), SlewProblem.from_dict(json.loads(text)).to_dict())
+    except (ValueError, TypeError, AttributeError):
+        return False
+
+
+def _close(a, b) -> bool:
+    """``a == b`` for JSON values, numbers to 1e-12 (a unit quaternion normalised once more may
+    change in its last bit)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool) and not isinstance(b, bool):
+        return abs(a - b) <= 1e-12 * max(1.0, abs(a), abs(b))
+    return a == b
+
+
 class BatchOutput:
     """Where a batch's records go.
 
-    ``BatchOutput(path, resume, lines)``: ``lines`` are the input line numbers that hold a
-    problem. With ``resume`` the records already in the file are read into ``done`` (input line
-    number -> record); each must be a record of one of ``lines``, at most one per line.
+    ``BatchOutput(path, resume, lines)``: ``lines`` maps the input line numbers that hold a
+    problem to their text. With ``resume`` the records already in the file are read into ``done``
+    (input line number -> record); each must be a record of one of ``lines``, at most one per line,
+    and a record that carries its problem must carry that line's (not another batch's).
     ``write(text)`` appends one record (JSON text without its newline). Errors are one-line
     ``ValueError``s naming ``-o`` or ``--resume``.
     """
@@ -77,7 +101,7 @@ class BatchOutput:
             except DatasetError as e:
                 raise ValueError(f"-o: {e}") from None
             if resume:
-                self._read_done(fd, set(lines))
+                self._read_done(fd, dict(lines) if isinstance(lines, dict) else set(lines))
             else:
                 os.ftruncate(fd, 0)
         except BaseException:
@@ -110,6 +134,10 @@ class BatchOutput:
             if k in at:
                 raise ValueError(f"-o: {path}: input line {k} has two records (lines {at[k]} and {lineno}); "
                                  "one run never writes that: fix the file or give another -o")
+            if isinstance(lines, dict) and "problem" in rec and not _same_problem(rec["problem"], lines[k]):
+                raise ValueError(f"-o: {path}: line {lineno} is the record of another problem than input line {k} "
+                                 "of the --batch file (another batch, or the file was edited): give another -o, or "
+                                 "leave out --resume to overwrite it")
             at[k] = lineno
             self.done[k] = rec
         tail = data[end:]

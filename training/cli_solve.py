@@ -510,7 +510,7 @@ def _run_batch(args, opts):
     t0 = time.perf_counter()
     tally = _Tally()
     where = "stdout" if args.output == "-" else args.output
-    with BatchOutput(args.output, resume=getattr(args, "resume", False), lines=[k for k, _ in items]) as out:
+    with BatchOutput(args.output, resume=getattr(args, "resume", False), lines=dict(items)) as out:
         for d in out.done.values():
             tally.add(d)
         if out.truncated_bytes:

@@ -11,7 +11,7 @@ structure, mapped back to the query's axes.
 File format (``.nn.npz``): ``X`` (n, N_FEATURES), ``Z`` (n, 6), ``T`` (n,), ``T_eig``
 (n,), ``U`` (n, 3), ``S`` (n, 3, K) switch times (NaN-padded), and ``card`` (JSON:
 ``format`` "slewopt-nn", ``format_version``, ``domain``, ``k``). ``k`` is a whole number from
-1 to ``MAX_NEIGHBOURS`` (64) and at most the table's rows (``checked_neighbours``): a guess
+1 to ``MAX_NEIGHBOURS`` (64; ``checked_neighbours``): a guess
 maps every neighbour to the problem inside the solve's time budget.
 """
 from __future__ import annotations
@@ -37,13 +37,15 @@ NEIGHBOURS_WHY = (" (a guess maps every neighbour's solution to the problem befo
                   "its time budget: about 25 µs a neighbour)")
 
 
-def checked_neighbours(k, n_rows, field="k", what="neighbours"):
+def checked_neighbours(k, n_rows, field="k", what="neighbours", at_most_rows=False):
     """A table's count of ``what`` (``k``, or a singular table's ``n_sequences``): a whole number
-    from 1 to ``MAX_NEIGHBOURS`` and to the table's ``n_rows``; ``ModelFileError`` naming
-    ``field`` otherwise (a card with k = 100,000 had made every row a candidate: a guess of a
-    second, outside any time budget)."""
+    from 1 to ``MAX_NEIGHBOURS``; ``ModelFileError`` naming ``field`` otherwise (a card with
+    k = 100,000 had made every row a candidate: a guess of a second, outside any time budget).
+    More than the table's ``n_rows`` is allowed unless ``at_most_rows``: a query gives all its rows
+    (a table made from a small data file, ``slew evaluate --train-data``; the singular table's
+    vote needs its ``k`` rows)."""
     k = whole_field(k, field, 1, MAX_NEIGHBOURS, NEIGHBOURS_WHY)
-    if n_rows is not None and k > n_rows:
+    if at_most_rows and n_rows is not None and k > n_rows:
         raise ModelFileError(f"{field}: {k} {what}, but the table holds only {n_rows} row{'s' if n_rows != 1 else ''}")
     return k
 

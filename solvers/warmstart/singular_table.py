@@ -63,7 +63,7 @@ class SingularTable:
         check_signs(self.U)
         # k: neighbours of the vote, at most the table's rows; n_sequences: the nearest singular
         # answers tried, each mapped to the problem up front (fewer singular rows: all of them)
-        self.k = checked_neighbours(k, self.X.shape[0])
+        self.k = checked_neighbours(k, self.X.shape[0], at_most_rows=True)
         self.n_sequences = checked_neighbours(n_sequences, MAX_NEIGHBOURS, "n_sequences", "sequences")
         if not (_is_number(vote) and 0.0 < float(vote) <= 1.0):
             raise ValueError(f"vote: the share of singular neighbours must be a number in (0, 1], got {vote!r}"[:200])
@@ -87,7 +87,7 @@ class SingularTable:
         try:
             # the card's fields by name first (``card.k``, ...), then the arrays
             k = card_whole(card, "k", 1, MAX_NEIGHBOURS, why=NEIGHBOURS_WHY)
-            checked_neighbours(k, table_rows(d), "card.k")
+            checked_neighbours(k, table_rows(d), "card.k", at_most_rows=True)
             n_sequences = card_whole(card, "n_sequences", 1, MAX_NEIGHBOURS,
                                      why=" (each is mapped to the problem before its optimisation starts)")
             if "vote" not in card:

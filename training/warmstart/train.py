@@ -55,7 +55,38 @@ def load_config(path=None, overrides=None) -> dict:
     eps = cfg.get("wta_eps", 0.05)
     if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not 0.0 <= eps < 1.0:
         raise ValueError(f"config.wta_eps: expected a number in [0, 1), got {eps!r}")
+    _check_exportable(cfg)
     return cfg
+
+
+def _check_exportable(cfg) -> None:
+    """The network the config describes is one that a model file may hold (``solvers.warmstart.model``'s
+    limits on switches, layers, heads and weights), checked before training rather than at its
+    export, after every epoch had run (a review: ``hidden: [2048, 2048]``, 4.3 M weights)."""
+    from solvers.warmstart.features import N_FEATURES
+    from solvers.warmstart.model import MAX_HEADS, MAX_LAYERS, MAX_SWITCHES, MAX_WEIGHTS, output_size
+    K = cfg["max_switches"]
+    if isinstance(K, bool) or not isinstance(K, int) or not 0 <= K <= MAX_SWITCHES:
+        raise ValueError(f"config.max_switches: expected a whole number from 0 to {MAX_SWITCHES}, got {K!r}")
+    hidden = cfg["hidden"]
+    if (not isinstance(hidden, list) or not 1 <= len(hidden) + 1 <= MAX_LAYERS
+            or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in hidden)):
+        raise ValueError(f"config.hidden: expected a list of at most {MAX_LAYERS - 1} layer widths (whole numbers "
+                         f"≥ 1), got {hidden!r}"[:300])
+    heads = int(cfg.get("heads", 1))
+    if heads > MAX_HEADS:
+        raise ValueError(f"config.heads: at most {MAX_HEADS} heads, got {heads}")
+    if _is_cones(cfg):
+        from solvers.warmstart.cone_model import cone_output_size
+        from .cone_data import N_IN as n_in
+        n_out = cone_output_size(K, heads)
+    else:
+        n_in, n_out = N_FEATURES, output_size(K)
+    sizes = [n_in, *hidden, n_out]
+    weights = sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
+    if weights > MAX_WEIGHTS:
+        raise ValueError(f"config.hidden: {weights:,} weights in all, more than the {MAX_WEIGHTS:,} a model file may "
+                         f"hold (a guess must stay within milliseconds)")
 
 
 def _is_cones(cfg):
