@@ -208,9 +208,10 @@ def record_check(target, td, ud, J):
     td = np.ascontiguousarray(td, float)
     ud = np.ascontiguousarray(ud, float)
     x0 = np.concatenate([np.asarray(target.q0, float), np.asarray(target.omega0, float)])
-    # the quadratic through the ends and their mean is the straight line between them
+    # the quadratic through the ends and their mean is the straight line between them; one RK4
+    # step an interval (its error, ~h⁵, is far below the record's own miss: DOP853 agrees to 1 %)
     _, X, _ = replay_quadratic_control(x0, td, ud, np.ascontiguousarray(0.5 * (ud[:-1] + ud[1:])),
-                                       np.full(3, np.inf), math.inf, np.asarray(J, float), 1, 4)
+                                       np.full(3, np.inf), math.inf, np.asarray(J, float), 1, 1)
     qT = X[-1, 0:4] / np.linalg.norm(X[-1, 0:4])
     att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction))
            if target.qf is None else float(qerror_angle(qT, target.qf)))
