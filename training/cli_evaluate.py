@@ -23,7 +23,7 @@ def add_arguments(p):
     p.add_argument("--warm-budget", type=float, default=None,
                    help="time budget of a model's candidates, seconds (default: solve()'s, 1; 0.2 with cones)")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
-    p.add_argument("--out", "-o", default="runs/evaluate", help="output directory (report.md, results.jsonl, evaluation.png)")
+    p.add_argument("--out", "-o", default="runs/evaluate", help="output directory (report.md, results.jsonl, evaluation.png; files of those names already there are replaced)")
     p.add_argument("--no-progress", action="store_true")
 
 
