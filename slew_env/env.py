@@ -110,6 +110,11 @@ def check_options(options, keys) -> dict:
     return dict(options)
 
 
+# the longest control step (time units T) and the most RK4 sub-steps a step may ask for
+MAX_CONTROL_DT = 10.0
+MAX_SUBSTEPS = 10_000
+
+
 def make_config(control_dt, substeps, success_bonus, violation_penalty, terminate_on_violation,
                 shaping, att_tol_deg, rate_tol, max_episode_steps=None) -> np.ndarray:
     """Validate the environment arguments and pack them for the kernels."""
@@ -128,7 +133,11 @@ def make_config(control_dt, substeps, success_bonus, violation_penalty, terminat
         raise ValueError(f"terminate_on_violation: must be True or False, got {terminate_on_violation!r:.80}")
     cfg = np.zeros(_k.CFG_LENGTH)
     cfg[_k.C_DT] = positive("control_dt", control_dt)
-    cfg[_k.C_SUBSTEPS] = whole("substeps", substeps, 1)
+    if cfg[_k.C_DT] > MAX_CONTROL_DT:
+        raise ValueError(f"control_dt: at most {MAX_CONTROL_DT:g} time units T (a slew takes a few), "
+                         f"got {control_dt!r:.80}")
+    # (each sub-step is compiled work that no signal interrupts: 1e12 of them had run for hours)
+    cfg[_k.C_SUBSTEPS] = whole("substeps", substeps, 1, MAX_SUBSTEPS)
     cfg[_k.C_BONUS] = nonneg("success_bonus", success_bonus)
     cfg[_k.C_PENALTY] = nonneg("violation_penalty", violation_penalty)
     cfg[_k.C_TERMINATE] = 1.0 if terminate_on_violation else 0.0
@@ -149,8 +158,13 @@ def resolve_distribution(task_distribution, max_cones):
     return dist
 
 
+# cone slots an environment may observe (each adds 6 numbers to the observation; 1e12 had asked
+# numpy for the memory and failed with a MemoryError naming no argument)
+MAX_CONE_SLOTS = 64
+
+
 def check_max_cones(max_cones):
-    return whole("max_cones", max_cones, 0)
+    return whole("max_cones", max_cones, 0, MAX_CONE_SLOTS)
 
 
 def problem_to_task(problem, max_cones: int) -> tuple[SlewProblem, np.ndarray]:
@@ -282,9 +296,11 @@ class SlewEnv(gym.Env):
     Argument                    Default           Meaning
     ==========================  ================  ==============================================
     ``task_distribution``       "full-attitude"   family name, ``TaskDistribution`` or dict
-    ``max_cones``               4                 cone slots in the observation
-    ``control_dt``              0.05              control step, in time units T
-    ``substeps``                4                 RK4 sub-steps per control step
+    ``max_cones``               4                 cone slots in the observation (at most 64)
+    ``control_dt``              0.05              control step, in time units T (at most 10)
+    ``substeps``                4                 RK4 sub-steps per control step (at most 10,000; one
+                                                  that would turn the body more than 0.5 rad is
+                                                  split, so a fast spin stays finite)
     ``success_bonus``           10.0              reward on success
     ``violation_penalty``       10.0              see Reward
     ``terminate_on_violation``  True              a violation ends the episode

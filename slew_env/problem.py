@@ -238,6 +238,17 @@ class Cone:
         return f"Cone(axis={self.axis.tolist()}, half_angle_deg={self.half_angle_deg:.6g})"
 
 
+def check_time_unit(inertia, torque_max, fields) -> None:
+    """Refuse (``ValueError`` naming ``fields``) inertia and torque bounds whose time unit
+    ``sqrt(J_max / u_max)`` or its inverse is outside the floating-point range: inertia 1e200
+    with torque 1e-200 had given NaN observations from the first reset (an outside fuzz)."""
+    ratio = float(np.max(inertia)) / float(np.max(torque_max))
+    if not (math.isfinite(ratio) and ratio > 0.0 and math.isfinite(1.0 / ratio)):
+        raise ValueError(f"{fields}: the time unit sqrt(J_max / u_max) of inertia {np.max(inertia):.3g} and "
+                         f"torque {np.max(torque_max):.3g} is outside the floating-point range; express them "
+                         "in other units")
+
+
 class SlewProblem:
     """A rigid-body slew: body, torque bound, start, target, cones, rate limit.
 
@@ -289,8 +300,9 @@ class SlewProblem:
         self.q0 = _unit_quaternion("q0", q0)
         self.omega0 = _vector("omega0", omega0, 3)
         self.omegaf = _vector("omegaf", omegaf, 3)
+        check_time_unit(self.inertia, self.torque_max, "inertia, torque_max")
         accel = self.torque_max / self.inertia          # per-axis acceleration bound
-        if float(accel.max() / accel.min()) > MAX_AXIS_SPREAD:
+        if not float(accel.max() / accel.min()) <= MAX_AXIS_SPREAD:     # (NaN too: inf / inf)
             raise ValueError(f"inertia, torque_max: the axes' acceleration bounds u_max,i / J_i differ by a factor "
                              f"{float(accel.max() / accel.min()):.3g}, beyond the {MAX_AXIS_SPREAD:g} the solvers are "
                              f"built for (inertia {self.inertia.tolist()}, torque_max {self.torque_max.tolist()})")

@@ -24,8 +24,10 @@ import warnings
 import gymnasium as gym
 import numpy as np
 
+from .checks import is_real
 from .core import env_kernels as _k
 from .core import shield as _s
+from .env import as_actions
 
 
 class ConeShieldFilter:
@@ -52,6 +54,8 @@ class ConeShieldFilter:
                  brake: float = 0.6, sweeps: int = 20, gap_deg: float = 1.0):
         def positive(name, x, upper=math.inf):
             try:
+                if not is_real(x):
+                    raise TypeError
                 x = float(x)
             except (TypeError, ValueError):
                 raise ValueError(f"{name}: must be a finite number in (0, {upper}], got {x!r}") from None
@@ -60,8 +64,8 @@ class ConeShieldFilter:
             return x
 
         def whole(name, x, lo, hi):
-            try:
-                ok = float(x) == int(x) and lo <= int(x) <= hi
+            try:       # (not text or a boolean: "0.5" and True had been read as numbers)
+                ok = is_real(x) and float(x) == int(x) and lo <= int(x) <= hi
             except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:
@@ -70,7 +74,7 @@ class ConeShieldFilter:
 
         def angle(name, x):
             try:
-                v = float(x)
+                v = float(x) if is_real(x) else math.nan
             except (TypeError, ValueError):
                 v = math.nan
             if not (math.isfinite(v) and 0.0 <= v < 90.0):
@@ -148,9 +152,9 @@ class ObservingActionWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def step(self, action):
         if self._obs is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        arr = np.asarray(action, dtype=np.float64)
-        if arr.shape != (3,):
-            raise ValueError(f"action: expected shape (3,), got {arr.shape}")
+        # (the environment's own check: text, booleans and complex numbers refused by name, as the
+        # unwrapped environment refuses them; numpy alone had read "1" as 1 and dropped 5j)
+        arr = np.asarray(as_actions("action", action, (3,)), dtype=np.float64)
         sent, extra = self.act(self._obs, arr)
         obs, reward, terminated, truncated, info = self.env.step(sent)
         self._obs = obs

@@ -196,6 +196,8 @@ class TaskDistribution:
         u = np.asarray(self.torque_max)
         u_spread = float(u.max() / u.min())
         if self.inertia_mode == "fixed":
+            from .problem import check_time_unit
+            check_time_unit(np.asarray(self.inertia), u, "inertia, torque_max")
             accel = u / np.asarray(self.inertia)
             worst, fields = float(accel.max() / accel.min()), "inertia, torque_max"
             how = f"inertia {list(self.inertia)}"
@@ -208,7 +210,7 @@ class TaskDistribution:
             lo, hi = self.inertia_ratio
             worst = u_spread * hi / lo
             fields, how = "inertia_ratio, torque_max", f"J_i drawn in [{lo:g}, {hi:g}]"
-        if worst > MAX_AXIS_SPREAD:
+        if not worst <= MAX_AXIS_SPREAD:      # (NaN too: inf / inf)
             raise ValueError(
                 f"{fields}: the axes' acceleration bounds u_max,i / J_i can differ by a factor {worst:.3g} "
                 f"(torque_max {list(self.torque_max)}, {how}), beyond the {MAX_AXIS_SPREAD:g} that "

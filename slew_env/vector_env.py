@@ -53,6 +53,12 @@ def _retry_reset(i, tasks, sts, cfg, dist, pool, pool_pos, obs, outs):
     return _k.reset_from_pool(i, tasks, sts, cfg, dist, pool, pool_pos, obs, outs)
 
 
+# bounds on the batch's size (numpy's MemoryError for 1e12 copies named no argument)
+MAX_COPIES = 1 << 20
+MAX_POOL_BLOCKS = 1024
+MAX_POOL_BYTES = 4 * 2 ** 30
+
+
 class SlewVectorEnv(VectorEnv):
     """A batch of ``num_envs`` ``SlewEnv`` copies (same arguments, see ``SlewEnv``).
 
@@ -80,9 +86,13 @@ class SlewVectorEnv(VectorEnv):
                  terminate_on_violation: bool = True, shaping: float = 1.0, att_tol_deg: float = 1.0,
                  rate_tol: float = 0.02, render_mode: Optional[str] = None,
                  parallel: bool = False, pool_blocks: int = 4):
-        n = whole("num_envs", num_envs, 1)
+        n = whole("num_envs", num_envs, 1, MAX_COPIES)
         check_render_mode(render_mode, self.metadata["render_modes"])
-        pool_blocks = whole("pool_blocks", pool_blocks, 1)
+        pool_blocks = whole("pool_blocks", pool_blocks, 1, MAX_POOL_BLOCKS)
+        if n * pool_blocks * BLOCK * 8 > MAX_POOL_BYTES:
+            raise ValueError(f"num_envs, pool_blocks: {n} copies × {pool_blocks} blocks of pre-drawn uniforms take "
+                             f"{n * pool_blocks * BLOCK * 8 / 2 ** 30:.3g} GiB, more than the "
+                             f"{MAX_POOL_BYTES / 2 ** 30:g} GiB allowed; use fewer")
         if not isinstance(parallel, (bool, np.bool_)):
             raise ValueError(f"parallel: must be True or False, got {parallel!r:.80}")
         self.max_cones = check_max_cones(max_cones)
@@ -208,7 +218,12 @@ class SlewVectorEnv(VectorEnv):
                 raise ValueError(f"problems: expected {n} entries (one per copy), got {len(problems)}")
             for i, p in enumerate(problems):
                 if p is not None:
-                    given[i] = problem_to_task(p, self.max_cones)[1]
+                    try:
+                        given[i] = problem_to_task(p, self.max_cones)[1]
+                    except ValueError as e:     # (which copy's problem: the field alone did not say)
+                        if "problem" in options:     # (one problem for every copy: no index to name)
+                            raise
+                        raise ValueError(f"problems[{i}]: {e}") from None
                     which[i] = 2
         if options.get("reset_mask") is not None:
             mask = self._mask(options["reset_mask"])

@@ -281,7 +281,7 @@ def test_actions_of_real_numbers_in_any_container_are_equal():
     ({"options": {"problme": None}}, r"^options: unknown key\(s\) \['problme'\]"),
     ({"options": {"problems": 3}}, r"^problems: expected a list of 3 entries"),
     ({"options": {"problems": "abc"}}, r"^problems: expected a list of 3 entries"),
-    ({"options": {"problems": [3, None, None]}}, r"^problem: expected a SlewProblem or a dict"),
+    ({"options": {"problems": [3, None, None]}}, r"^problems\[0\]: problem: expected a SlewProblem or a dict"),
     ({"options": {"problem": "abc"}}, r"^problem: expected a SlewProblem or a dict"),
     ({"options": {"reset_mask": "abc"}}, r"^reset_mask: expected 3 booleans"),
     ({"options": {"reset_mask": ["false", "true", "true"]}}, r"^reset_mask: expected 3 booleans"),

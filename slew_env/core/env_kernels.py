@@ -18,6 +18,8 @@ call, which is most of the cost of a step and rules out 10⁶ steps/s. The
 arithmetic is the same expression for expression, and the tests check that a
 step equals ``dynamics.propagate`` bit for bit.
 """
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -25,6 +27,11 @@ from . import task as _t
 # one allocation-free RK4 step shared with everything else that steps the body
 from .dynamics import rk4_step_inplace as rk4_substep, torque_from_action
 from .sampling import sample_task
+
+# rad: the most an RK4 sub-step may turn the body (its rate times the step) before it is split,
+# into at most MAX_SUBSTEP_SPLIT pieces (``step_env``)
+MAX_SUBSTEP_ANGLE = 0.5
+MAX_SUBSTEP_SPLIT = 4096
 
 # --- st: per-copy state ------------------------------------------------------------
 S_X = 0          # 7: [q0..q3, ω1..ω3]
@@ -297,7 +304,14 @@ def step_env(task, st, action, cfg, obs, out):
     n_done = 0
     n_viol = 0
     for _ in range(n_sub):
-        rk4_substep(x, u0, u1, u2, J0, J1, J2, h)
+        # a body spun fast (a long episode at full torque, a long control_dt) would turn more than
+        # MAX_SUBSTEP_ANGLE in one RK4 step, where RK4 diverges (NaN observations after ~4,000
+        # saturated steps, an outside fuzz): the sub-step is split, which leaves every ordinary
+        # step (|ω|·h ≈ 0.25 at the end of a 400-step episode at full torque) as it was
+        w = math.sqrt(x[4] * x[4] + x[5] * x[5] + x[6] * x[6])
+        m = int(min(math.ceil(w * h / MAX_SUBSTEP_ANGLE), MAX_SUBSTEP_SPLIT)) if w * h > MAX_SUBSTEP_ANGLE else 1
+        for _ in range(m):
+            rk4_substep(x, u0, u1, u2, J0, J1, J2, h / m)
         n_done += 1
         # The constraint holds at every sub-step, not only at control instants.
         bad = abs(x[4]) > rm0 or abs(x[5]) > rm1 or abs(x[6]) > rm2
