@@ -7,7 +7,7 @@ TINY_PPO = {"n_envs": 1, "n_timesteps": 128, "policy": "MlpPolicy",
             "policy_kwargs": {"net_arch": {"pi": [16], "vf": [16]}},
             "hyperparameters": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
             "normalize": {"norm_obs": True, "norm_reward": False}, "env_kwargs": {"max_episode_steps": 30},
-            "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0}}
+            "eval": None, "checkpoint": None}
 
 
 def tiny_config(directory, **changes):

@@ -20,7 +20,7 @@ TINY = {"n_envs": 1, "n_timesteps": 0, "policy": "MlpPolicy",
         "policy_kwargs": {"net_arch": {"pi": [16], "vf": [16]}},
         "hyperparameters": {"learning_rate": 3.0e-4, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
         "normalize": {"norm_obs": True, "norm_reward": False},
-        "env_kwargs": {"max_episode_steps": 50}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+        "env_kwargs": {"max_episode_steps": 50}, "eval": None, "checkpoint": None,
         "bc": {"epochs": 2, "value_pretrain": False, "rl_learning_rate": 7.0e-5}}
 
 

@@ -99,7 +99,7 @@ def test_dense_bc_pretrain_and_a_dagger_round(dense_records, tmp_path):
             "policy_kwargs": {"net_arch": {"pi": [32, 32], "vf": [32, 32]}},
             "hyperparameters": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
             "normalize": {"norm_obs": True, "norm_reward": False},
-            "env_kwargs": {"max_episode_steps": 50}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+            "env_kwargs": {"max_episode_steps": 50}, "eval": None, "checkpoint": None,
             "bc": {"expert": "dense", "margin_deg": 2.0, "epochs": 5}}
     cfg = tmp_path / "ppo.yaml"
     cfg.write_text(yaml.safe_dump({"pointing-cones": tiny}))

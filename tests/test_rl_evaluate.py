@@ -19,7 +19,7 @@ TINY = {"n_envs": 2, "n_timesteps": 256, "policy": "MlpPolicy",
         "policy_kwargs": {"net_arch": {"pi": [32, 32], "vf": [32, 32]}},
         "hyperparameters": {"n_steps": 128, "batch_size": 64, "n_epochs": 1},
         "normalize": {"norm_obs": True, "norm_reward": False},
-        "env_kwargs": {"max_episode_steps": 100}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+        "env_kwargs": {"max_episode_steps": 100}, "eval": None, "checkpoint": None,
         "bc": {"epochs": 3}}
 REPORT_KEYS = {"n", "n_success", "success_rate", "n_violation", "violation_rate", "tf_policy_median",
                "solver_ok", "solver_failed", "solver_refused", "ratio_n", "ratio_median", "ratio_mean",
@@ -160,7 +160,7 @@ def test_sac_bc_pretrain_prefills_replay_and_warms_up(solutions, tmp_path):
     cfg.write_text(yaml.safe_dump({"full-attitude": {
         "n_envs": 1, "n_timesteps": 300, "policy_kwargs": {"net_arch": [32, 32]},
         "hyperparameters": {"buffer_size": 2000, "learning_starts": 1000, "batch_size": 32},
-        "env_kwargs": {"max_episode_steps": 100}, "eval": {"eval_freq": 0}, "checkpoint": {"save_freq": 0},
+        "env_kwargs": {"max_episode_steps": 100}, "eval": None, "checkpoint": None,
         "bc": {"epochs": 3, "actor_warmup": 100, "ent_coef_init": 0.02, "rl_learning_rate": 1e-4}}}))
     info = train("sac", "full-attitude", config=cfg, seed=0, out=tmp_path / "run", bc_pretrain=3,
                  expert_data=sol_path, bc_seed=SEED)

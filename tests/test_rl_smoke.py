@@ -166,7 +166,7 @@ def test_config_files_and_overrides():
 
 def test_subproc_vec_env(tmp_path):
     """SubprocVecEnv workers register Slew-v0 themselves (env id "slew_env:slew_env/Slew-v0")."""
-    cfg = dict(PPO_CFG, n_timesteps=512, eval={"eval_freq": 0}, checkpoint={"save_freq": 0})
+    cfg = dict(PPO_CFG, n_timesteps=512, eval=None, checkpoint=None)
     info = train("ppo", "full-attitude", config=_write_cfg(tmp_path, "ppo", cfg), out=tmp_path / "run",
                  vec_env="subproc")
     assert info["vec_env"] == "subproc" and info["num_timesteps"] >= 512
@@ -178,7 +178,7 @@ def test_ppo_on_cones_with_filter_capture_and_features_trains_reloads_and_evalua
     from training.rl.evaluate import evaluate, load_policy
     from training.rl.features import HighGainFeatures
 
-    entry = dict(PPO_CFG, n_timesteps=1024, eval={"eval_freq": 0}, checkpoint={"save_freq": 0})
+    entry = dict(PPO_CFG, n_timesteps=1024, eval=None, checkpoint=None)
     entry["policy_kwargs"] = dict(PPO_CFG["policy_kwargs"], features_extractor_class="high_gain")
     entry["shield"] = {"margin_deg": 0.5}
     entry["capture"] = {"deg": 1.0}

@@ -1,4 +1,5 @@
 """``slew env-demo``: run a random policy on Slew-v0 and save a rendered frame."""
+import os
 
 
 def add_arguments(p):
@@ -7,6 +8,21 @@ def add_arguments(p):
     p.add_argument("--family", default="pointing-cones",
                    help="task distribution family: pointing-cones (default) or full-attitude")
     p.add_argument("--out", default="frame.png", help="PNG file for the last frame (default frame.png)")
+
+
+def _check_writable(path):
+    """Fail before the episode, naming ``--out``, if the frame cannot be written there (a missing
+    directory, a directory of that name, a name too long...): the OS error had come only after the
+    run, without the option's name. Opening for append changes nothing in a file already there, and
+    the empty file made for the test is removed again."""
+    existed = os.path.lexists(path)
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as exc:
+        raise ValueError(f"--out: cannot write {path}: {exc.strerror or exc}") from None
+    if not existed:
+        os.remove(path)
 
 
 def run(args):
@@ -20,10 +36,15 @@ def run(args):
         raise ValueError(f"--steps: must be >= 1, got {args.steps}")
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
-    if not args.out.lower().endswith(".png"):
+    if not args.out.lower().endswith(".png") or os.path.basename(args.out).lower() == ".png":
+        # (".png" alone has no suffix to matplotlib, which said only "unknown file extension")
         raise ValueError(f"--out: expected a .png file name, got {args.out!r}")
-    env = gym.make(slew_env.ENV_ID, task_distribution=args.family, render_mode="rgb_array",
-                   terminate_on_violation=False)
+    _check_writable(args.out)
+    try:
+        env = gym.make(slew_env.ENV_ID, task_distribution=args.family, render_mode="rgb_array",
+                       terminate_on_violation=False)
+    except ValueError as exc:
+        raise ValueError(f"--family: {exc}") from None
     env.action_space.seed(args.seed)
     _, info = env.reset(seed=args.seed)
     print(repr(env.unwrapped.problem))

@@ -69,15 +69,14 @@ def _find_policy_files(policy):
 
 def load_policy(policy):
     """``(model, vecnormalize or None, config dict)`` of a policy directory or model zip (CPU, eval mode)."""
-    import yaml
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from .bc import _env_for
+    from .train import _first_line, read_yaml
 
     model_path, vn_path, cfg_path = _find_policy_files(policy)
-    with open(cfg_path) as f:
-        cfg = yaml.safe_load(f)
+    cfg = read_yaml(cfg_path, "a mapping (the run's configuration)")     # a one-line error naming the file
     cls = {"ppo": PPO, "sac": SAC}.get(cfg.get("algo"))
     if cls is None:
         raise ValueError(f"{cfg_path}: unknown algo {cfg.get('algo')!r}")
@@ -85,7 +84,14 @@ def load_policy(policy):
     vn = None
     if vn_path is not None:
         env_kwargs = cfg.get("env_kwargs") or {}
-        vn = VecNormalize.load(str(vn_path), DummyVecEnv([lambda: _env_for(env_kwargs)]))
+        if not isinstance(env_kwargs, dict):
+            raise ValueError(f"{cfg_path}: env_kwargs: expected a mapping, got {env_kwargs!r}")
+        venv = DummyVecEnv([lambda: _env_for(env_kwargs)])
+        try:
+            vn = VecNormalize.load(str(vn_path), venv)
+        except Exception as exc:
+            # unpickling fails in many ways (UnpicklingError, EOFError, AttributeError...): name the file
+            raise ValueError(f"{vn_path}: not VecNormalize statistics ({_first_line(exc)})") from None
         vn.training = False
         vn.norm_reward = False
     elif cfg.get("normalize"):
@@ -311,6 +317,10 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
         raise ValueError(f"--n: must be >= 1, got {n}")
     if max_steps < 1:
         raise ValueError(f"--max-steps: must be >= 1, got {max_steps}")
+    if plot_k < 0:     # (-1 had been taken as 0, no plot, without a word)
+        raise ValueError(f"--plot-k: must be >= 0, got {plot_k}")
+    if solver_workers < 1:
+        raise ValueError(f"--solver-workers: must be >= 1, got {solver_workers}")
     t0 = time.perf_counter()
     policy = resolve_policy(policy)
     model, vn, cfg = load_policy(policy)
@@ -612,7 +622,8 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--seed", type=int, default=DEFAULT_EVAL_SEED,
                    help=f"seed of the held-out problems (default {DEFAULT_EVAL_SEED})")
     p.add_argument("--out", metavar="DIR", help="report directory (default <policy dir>/eval-<family>-seed<S>; "
-                   "eval-<zip name>-<family>-seed<S> for a checkpoint or any zip but model.zip / best_model.zip)")
+                   "eval-<zip name>-<family>-seed<S> for a checkpoint or any zip but model.zip / best_model.zip); "
+                   "report.md, results.json and overlay.png already there are replaced")
     p.add_argument("--plot-k", type=int, default=3, help="problems in overlay.png (default 3; 0: no plot)")
     p.add_argument("--solutions", metavar="FILE.jsonl",
                    help="solver answers of the held-out problems (slew generate format; created or continued; "
@@ -637,8 +648,13 @@ def add_arguments(p: argparse.ArgumentParser):
 def run(args) -> int:
     import torch
 
-    torch.set_num_threads(max(int(args.threads), 1))
-    opts = json.loads(args.solve_options) if args.solve_options else None
+    if args.threads < 1:        # refused as train-rl refuses it (0 had run with 1 thread without a word)
+        raise ValueError(f"--threads: must be >= 1, got {args.threads}")
+    torch.set_num_threads(int(args.threads))
+    try:
+        opts = json.loads(args.solve_options) if args.solve_options else None
+    except ValueError as exc:
+        raise ValueError(f"--solve-options: not valid JSON ({exc})") from None
     if opts is not None and not isinstance(opts, dict):
         raise ValueError("--solve-options: expected a JSON object")
     res = evaluate(args.policy, args.family, args.n, args.seed, args.out, args.plot_k, args.solutions,

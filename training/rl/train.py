@@ -31,16 +31,28 @@ family; ``training/rl/configs/``). The run directory ``--out`` receives:
 a run directory's files goes on in that directory. A resumed run that writes into a directory
 holding a run's files (in place, or an ``--out`` used before) keeps them: ``train_info.json``'s
 record goes under ``previous_runs``, the new evaluations are appended to ``eval/evaluations.npz``,
-and ``best/best_model.zip`` is replaced only by an evaluation better than the best there.
+and ``best/best_model.zip`` is replaced only by an evaluation better than the best there. A run
+directory given to ``--resume`` is resumed from its newest model (``newest_in_run``).
+
+Without ``--resume``, an ``--out`` that already holds a run is refused (a new run had overwritten it).
+Every setting is checked before anything is built or written (``check_config``), and a failed
+start leaves no directory behind. Ctrl-C or SIGTERM stops training at the next step, saves
+``model.zip``, ``vecnormalize.pkl`` and ``train_info.json`` there, and exits 130 / 143 with one
+line giving the ``--resume`` command that continues it.
 """
 from __future__ import annotations
 
 import argparse
 import copy
 import json
+import os
 import platform
 import re
+import shlex
+import shutil
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -65,20 +77,20 @@ def default_config_path(algo: str) -> Path:
 
 def load_config(algo: str, family: str, path=None) -> dict:
     """The entry ``family`` of the YAML file ``path`` (default: ``configs/<algo>.yaml``), with defaults."""
-    import yaml
-
     if algo not in ALGOS:
         raise ValueError(f"--algo: expected one of {', '.join(ALGOS)}, got {algo!r}")
     path = Path(path) if path is not None else default_config_path(algo)
     if not path.exists():
-        raise FileNotFoundError(f"config file {path} not found")
-    with open(path) as f:
-        data = yaml.safe_load(f) or {}
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a mapping of task family -> settings")
+        raise FileNotFoundError(f"--config: config file {path} not found")
+    try:
+        data = read_yaml(path, "a mapping of task family -> settings")
+    except ValueError as exc:
+        raise ValueError(f"--config: {exc}") from None
     if family not in data:
         raise ValueError(f"{path}: no entry for family {family!r} (entries: {', '.join(map(str, data)) or 'none'})")
     entry = data[family] or {}
+    if not isinstance(entry, dict):
+        raise ValueError(f"{path}: entry {family!r}: expected a mapping of settings, got {entry!r}")
     unknown = set(entry) - CONFIG_KEYS
     if unknown:
         raise ValueError(f"{path}: entry {family!r}: unknown key(s) {sorted(unknown)}; known: {sorted(CONFIG_KEYS)}")
@@ -105,7 +117,9 @@ def apply_overrides(cfg: dict, items) -> dict:
         node = cfg
         parts = key.split(".")
         for p in parts[:-1]:
-            node = node.setdefault(p, {})
+            if node.get(p) is None:      # (`eval: null`, off: --set eval.eval_freq=N switches it on)
+                node[p] = {}
+            node = node[p]
             if not isinstance(node, dict):
                 raise ValueError(f"--set: {key!r}: {p!r} is not a mapping")
         node[parts[-1]] = yaml.safe_load(value)
@@ -150,6 +164,163 @@ def hyperparameters_from(cfg: dict) -> dict:
         if k in hp:
             raise ValueError(f"hyperparameters.{k}: set it with its own key, not in hyperparameters")
     return hp
+
+
+# --------------------------------------------------------------------------- checks before training
+def _yaml_error(path, exc) -> str:
+    """One line for a YAML file that does not parse (PyYAML's message spans several lines)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{path}: not a valid YAML file ({what}{where})"
+
+
+def read_yaml(path, what: str = "a mapping") -> dict:
+    """The mapping in YAML file ``path``; a ``ValueError`` naming the file if it does not parse or
+    holds something else (PyYAML's own errors are multi-line tracebacks)."""
+    import yaml
+
+    try:
+        with open(path) as f:
+            data = yaml.safe_load(f)
+    except yaml.YAMLError as exc:
+        raise ValueError(_yaml_error(path, exc)) from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a valid YAML file (not text)") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected {what}, got {type(data).__name__}")
+    return data
+
+
+def _is_real(v) -> bool:
+    import numbers
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def _number(key: str, v, low=None, low_open: bool = False, integer: bool = False):
+    """``v`` as a finite number (an int if ``integer``; ``1.0e5`` is taken as 100000) >= ``low``
+    (> if ``low_open``); a ``ValueError`` naming ``key`` otherwise. YAML reads ``nan`` or ``1e5``
+    as text, which SB3 would only trip over mid-training."""
+    import math
+
+    if not _is_real(v) or not math.isfinite(v):
+        raise ValueError(f"{key}: expected a finite {'integer' if integer else 'number'}, got {v!r}")
+    if integer:
+        if v != int(v):
+            raise ValueError(f"{key}: expected an integer, got {v!r}")
+        v = int(v)
+    if low is not None and (v <= low if low_open else v < low):
+        raise ValueError(f"{key}: must be {'>' if low_open else '>='} {low}, got {v!r}")
+    return v
+
+
+def _mapping(cfg: dict, key: str) -> dict:
+    v = cfg.get(key)
+    if v is None:
+        return {}
+    if not isinstance(v, dict):
+        raise ValueError(f"{key}: expected a mapping, got {v!r}")
+    return v
+
+
+# keyword arguments of PPO/SAC that train() sets itself (hyperparameters_from refuses them by name)
+_OWN_ARGUMENTS = {"self", "policy", "env", "policy_kwargs", "seed", "tensorboard_log", "verbose", "device",
+                  "_init_setup_model"}
+_SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
+NORMALIZE_KEYS = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon", "norm_obs_keys"}
+
+
+def check_config(cfg: dict, algo: str) -> None:
+    """Refuse, before anything is built or written, the settings SB3, gymnasium or VecNormalize would
+    only trip over with a raw traceback (or mid-training), naming the key: unknown hyperparameter or
+    ``env_kwargs`` names, text where a number goes, non-finite numbers, and frequencies that would
+    silently switch checkpoints or evaluation off. Values are normalised in place (``1.0e5`` -> int)."""
+    import inspect
+
+    from slew_env import SlewEnv
+
+    cfg["n_envs"] = _number("n_envs", cfg.get("n_envs"), 1, integer=True)
+    cfg["n_timesteps"] = _number("n_timesteps", cfg.get("n_timesteps"), 0, integer=True)
+
+    hp = _mapping(cfg, "hyperparameters")
+    params = inspect.signature(_algo_class(algo).__init__).parameters
+    for k in hp:
+        if k in ("policy", "env", "policy_kwargs", "seed", "tensorboard_log"):
+            raise ValueError(f"hyperparameters.{k}: set it with its own key, not in hyperparameters")
+        if k not in params or k in _OWN_ARGUMENTS:
+            known = sorted(set(params) - _OWN_ARGUMENTS)
+            raise ValueError(f"hyperparameters.{k}: not a {algo.upper()} argument; known: {', '.join(known)}")
+    for k, v in hp.items():
+        key = f"hyperparameters.{k}"
+        if k in _SCHEDULES:
+            if isinstance(v, str) and v.startswith("lin_"):
+                try:
+                    _number(key, _float_or_text(v[4:]), 0)
+                except ValueError:
+                    raise ValueError(f"{key}: expected a number or lin_<number> (a linear decay from it), "
+                                     f"got {v!r}") from None
+            elif not (v is None and k == "clip_range_vf"):
+                _number(key, v, 0)       # (0: a frozen policy, as some tests train)
+            continue
+        default = params[k].default
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ValueError(f"{key}: expected true or false, got {v!r}")
+        elif isinstance(default, (int, float)) and not (k == "train_freq" and isinstance(v, (list, tuple))):
+            # (SAC's train_freq may also be [N, "step"|"episode"]; SB3 checks that form itself)
+            hp[k] = _number(key, v, integer=isinstance(default, int))
+
+    nk = cfg.get("normalize")
+    if isinstance(nk, dict):
+        for k, v in nk.items():
+            key = f"normalize.{k}"
+            if k not in NORMALIZE_KEYS:
+                raise ValueError(f"{key}: not a VecNormalize argument; known: {', '.join(sorted(NORMALIZE_KEYS))}")
+            if k in ("norm_obs", "norm_reward") and not isinstance(v, bool):
+                raise ValueError(f"{key}: expected true or false, got {v!r}")
+            if k in ("clip_obs", "clip_reward", "epsilon"):
+                nk[k] = _number(key, v, 0, low_open=True)
+            if k == "gamma":
+                nk[k] = _number(key, v, 0, low_open=True)
+                if nk[k] > 1:
+                    raise ValueError(f"{key}: must be <= 1, got {v!r}")
+    elif nk not in (None, False, True):
+        raise ValueError(f"normalize: expected a mapping of VecNormalize arguments, true or false, got {nk!r}")
+
+    ek = _mapping(cfg, "env_kwargs")
+    known = set(inspect.signature(SlewEnv.__init__).parameters) - {"self"} | {"max_episode_steps"}
+    for k in ek:
+        if k not in known:
+            raise ValueError(f"env_kwargs.{k}: not a Slew-v0 argument; known: {', '.join(sorted(known))}")
+    if "max_episode_steps" in ek and ek["max_episode_steps"] is not None:
+        ek["max_episode_steps"] = _number("env_kwargs.max_episode_steps", ek["max_episode_steps"], 1, integer=True)
+
+    # a frequency of 0 or less had switched evaluation / checkpoints off without a word; off is said
+    # with `eval: null` / `checkpoint: null`
+    for section, freq in (("eval", "eval_freq"), ("checkpoint", "save_freq")):
+        sec = cfg.get(section)
+        if sec is None or sec is False:
+            continue
+        if not isinstance(sec, dict):
+            raise ValueError(f"{section}: expected a mapping or null (off), got {sec!r}")
+        if freq not in sec:
+            raise ValueError(f"{section}.{freq}: missing (set {section}: null to run without)")
+        try:
+            sec[freq] = _number(f"{section}.{freq}", sec[freq], 1, integer=True)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (set {section}: null to run without)") from None
+    ev = cfg.get("eval") or {}
+    if "n_eval_episodes" in ev:
+        ev["n_eval_episodes"] = _number("eval.n_eval_episodes", ev["n_eval_episodes"], 1, integer=True)
+
+
+def _float_or_text(s):
+    try:
+        return float(s)
+    except ValueError:
+        return s
 
 
 # --------------------------------------------------------------------------- environments
@@ -203,6 +374,12 @@ def wrap_controller(env, shield: Optional[dict] = None, capture: Optional[dict] 
     return env
 
 
+def _subproc_wrapper(env, shield=None, capture=None):
+    """A ``SubprocVecEnv`` copy: Ctrl-C ignored in the worker (``_ignore_sigint_in_workers``), then
+    ``wrap_controller``."""
+    return wrap_controller(_ignore_sigint_in_workers(env), shield, capture)
+
+
 def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
     """``make_vec_env`` of Slew-v0 (Monitor-wrapped, copy i seeded with ``seed + i``; wrapped in
     ``ConeShield`` / ``CaptureHandover`` when the config has a ``shield`` / ``capture``)."""
@@ -218,6 +395,8 @@ def make_vec(cfg: dict, n_envs: int, seed: int, vec_env: str = "dummy"):
     wrap = {}
     if shield is not None or capture is not None:
         wrap = {"wrapper_class": wrap_controller, "wrapper_kwargs": {"shield": shield, "capture": capture}}
+    if cls is SubprocVecEnv:
+        wrap = {"wrapper_class": _subproc_wrapper, "wrapper_kwargs": {"shield": shield, "capture": capture}}
     return make_vec_env(f"slew_env:{slew_env.ENV_ID}", n_envs=n_envs, seed=seed, vec_env_cls=cls,
                         env_kwargs=make_env_kwargs(cfg), monitor_kwargs={"info_keywords": ("is_success",)}, **wrap)
 
@@ -419,16 +598,52 @@ def tensorboard_dir(out: Path):
 
 
 # --------------------------------------------------------------------------- resume
+def _zip_timesteps(path: Path) -> Optional[int]:
+    """``num_timesteps`` recorded in an SB3 model zip (its ``data`` JSON), None if unreadable."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return int(json.loads(z.read("data"))["num_timesteps"])
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile):
+        return None
+
+
+def _checkpoint_steps(path: Path) -> Optional[int]:
+    m = re.fullmatch(r"rl_model_(\d+)_steps\.zip", path.name)
+    return int(m.group(1)) if m else None
+
+
+def newest_in_run(run: Path) -> Path:
+    """The model a run directory is resumed from: the newest of ``model.zip`` and
+    ``checkpoints/rl_model_<N>_steps.zip`` by timesteps (``model.zip`` on a tie, or when its
+    count cannot be read). A run killed before its end (SIGKILL, a crash) has checkpoints but
+    no ``model.zip``, or a ``model.zip`` older than them (a resumed run killed in place)."""
+    best, best_steps = None, -1
+    model = run / "model.zip"
+    if model.exists():
+        steps = _zip_timesteps(model)
+        best, best_steps = model, (float("inf") if steps is None else steps)
+    ck = run / "checkpoints"
+    for p in (sorted(ck.glob("rl_model_*_steps.zip")) if ck.is_dir() else []):
+        steps = _checkpoint_steps(p)
+        if steps is not None and steps > best_steps:
+            best, best_steps = p, steps
+    if best is None:
+        raise FileNotFoundError(f"--resume: {run} holds no model.zip and no checkpoints/rl_model_<N>_steps.zip")
+    return best
+
+
 def find_checkpoint_files(resume) -> tuple[Path, Optional[Path], Optional[Path], Optional[Path]]:
     """``(model zip, vecnormalize pkl or None, replay buffer pkl or None, run dir or None)`` of ``resume``.
 
-    ``resume``: a run directory (``model.zip``), a ``model.zip``/``best_model.zip`` (its
-    ``vecnormalize.pkl`` beside it) or a checkpoint ``rl_model_<N>_steps.zip``
+    ``resume``: a run directory (its newest model: ``newest_in_run``), a ``model.zip``/``best_model.zip``
+    (its ``vecnormalize.pkl`` beside it) or a checkpoint ``rl_model_<N>_steps.zip``
     (``rl_model_vecnormalize_<N>_steps.pkl`` beside it).
     """
     p = Path(resume)
     if p.is_dir():
-        p = p / "model.zip"
+        p = newest_in_run(p)
     if not p.exists() and p.with_suffix(".zip").exists():
         p = p.with_suffix(".zip")
     if not p.exists():
@@ -443,6 +658,8 @@ def find_checkpoint_files(resume) -> tuple[Path, Optional[Path], Optional[Path],
     else:
         vn = p.with_name("vecnormalize.pkl")
         run_dir = p.parent.parent if p.parent.name == "best" else p.parent
+        if p.name == "model.zip" and (p.parent / "replay_buffer.pkl").exists():   # (saved at an interrupt)
+            replay = p.parent / "replay_buffer.pkl"
     return p, (vn if vn.exists() else None), replay, (run_dir if (run_dir / "config.yaml").exists() else None)
 
 
@@ -472,6 +689,124 @@ def save_yaml(obj, path):
         yaml.safe_dump(obj, f, sort_keys=False)
 
 
+# --------------------------------------------------------------------------- the run directory
+# files that make a directory hold a run: a fresh run would overwrite them (the final model, its
+# statistics, the record, the best model, the evaluation log) or mix its checkpoints with them
+RUN_MARKERS = ("model.zip", "vecnormalize.pkl", "train_info.json", "best/best_model.zip", "eval/evaluations.npz")
+
+
+def run_files(out: Path) -> list:
+    """The files of an earlier run in ``out`` (``RUN_MARKERS`` and ``checkpoints/``)."""
+    if not out.is_dir():
+        return []
+    found = [m for m in RUN_MARKERS if (out / m).exists()]
+    if (out / "checkpoints").is_dir() and any((out / "checkpoints").glob("rl_model_*")):
+        found.append("checkpoints/")
+    return found
+
+
+def check_out(out: Path, fresh: bool, given: bool) -> Optional[Path]:
+    """Refuse an ``--out`` a run cannot go to, before anything is built; returns the first missing
+    directory of ``out`` (removed again if the start fails: no empty directory left behind), or None.
+
+    ``fresh`` (no ``--resume``): an ``out`` holding a run is refused. A new run wrote its
+    ``model.zip``, ``best/``, ``eval/evaluations.npz`` and ``train_info.json`` over the old
+    run's and left the old run's later checkpoints among its own; ``--resume`` continues a run.
+    """
+    name = "--out" if given else f"--out (default {out})"
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{name}: {out} exists and is not a directory")
+    if fresh:
+        found = run_files(out)
+        if found:
+            raise ValueError(f"{name}: {out} already holds a run ({', '.join(found)}); a new run would overwrite "
+                             f"it: continue it with --resume {out}, or choose another --out")
+    missing, parent = None, out
+    while not parent.exists():
+        missing, parent = parent, parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{name}: cannot create {out}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{name}: cannot write in {parent}")
+    return missing
+
+
+# --------------------------------------------------------------------------- Ctrl-C / SIGTERM
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped ``train``, which saved the run where it stopped first: ``info`` is
+    the ``train_info`` written, ``signum`` the signal. A ``KeyboardInterrupt``, so that a script
+    running several trainings stops as on Ctrl-C rather than going on to the next one."""
+
+    def __init__(self, info: dict, signum: int):
+        super().__init__(info, signum)
+        self.info, self.signum = info, signum
+
+
+class _SignalStop:
+    """SIGINT / SIGTERM while training: the first asks ``learn`` to stop at the next environment step
+    (``callback``, which returns False), so that the model can be saved whole; a second one raises
+    ``KeyboardInterrupt`` at once (the user will not wait for the step to end), except during the
+    save (``hold``), which it must not cut. Main thread only (only there can handlers be set)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.signum, self._old, self._holding = None, {}, False
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for s in self.SIGNALS:
+                self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._old.items():
+            signal.signal(s, signal.SIG_DFL if h is None else h)
+        return False
+
+    def _handle(self, signum, frame):
+        if self.signum is None:
+            self.signum = signum
+        elif not self._holding:
+            raise KeyboardInterrupt
+
+    def hold(self):
+        self._holding = True
+
+    def callback(self):
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        stop = self
+
+        class StopOnSignal(BaseCallback):
+            def _on_step(self):
+                return stop.signum is None
+
+        return StopOnSignal()
+
+
+def _ignore_sigint_in_workers(env):
+    """``wrapper_class`` of ``SubprocVecEnv`` copies: a Ctrl-C at a terminal goes to the whole
+    process group, and a worker it killed left the parent nothing to step, and no model to save.
+    The parent stops them when it has saved (a worker also ends when its pipe closes)."""
+    import multiprocessing
+    if multiprocessing.parent_process() is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return env
+
+
+def _atomic_save(save, path: Path):
+    """``save(tmp)`` then rename over ``path``: a kill during the save leaves the old file whole."""
+    tmp = path.with_name(path.stem + ".partial" + path.suffix)
+    save(str(tmp))
+    os.replace(tmp, path)
+
+
+def _first_line(exc) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 # --------------------------------------------------------------------------- training
 def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, n_envs: Optional[int] = None,
           seed: Optional[int] = None, out=None, resume=None, bc_pretrain: int = 0, progress_bar: bool = False,
@@ -485,6 +820,12 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
     (``training.rl.bc.pretrain``); 0 for none. ``overrides``: ``KEY=VALUE`` strings
     applied to the config. ``threads``: torch CPU threads (default 1: on a small shared
     machine more threads make PPO/SAC several times *slower*; None leaves torch's default).
+
+    Every setting is checked, and ``out`` too, before anything is built or written; a start that
+    fails leaves no directory behind. A fresh run refuses an ``out`` that holds a run. SIGINT or
+    SIGTERM stops training at the next step and saves the run there (``model.zip``,
+    ``vecnormalize.pkl``, ``train_info.json`` with ``interrupted``), then raises
+    ``TrainingInterrupted``; ``--resume out`` continues it.
     """
     import numpy as np
     import torch
@@ -497,14 +838,20 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
         torch.set_num_threads(int(threads))
     if family not in FAMILIES:
         raise ValueError(f"--family: expected one of {', '.join(FAMILIES)}, got {family!r}")
+    if seed is not None and not 0 <= seed < 2 ** 32:
+        raise ValueError(f"--seed: must be between 0 and 2**32 - 1, got {seed}")
     resume_files = find_checkpoint_files(resume) if resume else None
     if config is None and resume_files and resume_files[3] is not None:
-        import yaml
-        with open(resume_files[3] / "config.yaml") as f:
-            cfg = yaml.safe_load(f)
+        cfg = read_yaml(resume_files[3] / "config.yaml")
         if cfg.get("algo") != algo or cfg.get("family") != family:
             raise ValueError(f"--resume: the checkpoint's run is {cfg.get('algo')} on {cfg.get('family')}, "
                              f"not {algo} on {family}")
+        for section, freq in (("eval", "eval_freq"), ("checkpoint", "save_freq")):
+            # runs before check_config switched these off with a frequency of 0; their config.yaml
+            # says so, and resuming them must not be refused for it
+            sec = cfg.get(section)
+            if isinstance(sec, dict) and _is_real(sec.get(freq)) and sec[freq] <= 0:
+                cfg[section] = None
         if seed is None:
             seed = int(cfg.get("seed", 0))
     else:
@@ -518,114 +865,158 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
         raise ValueError(f"--timesteps: must be >= 0, got {timesteps}")
     if bc_pretrain and bc_pretrain < 0:
         raise ValueError(f"--bc-pretrain: must be >= 0, got {bc_pretrain}")
+    if solver_workers < 1:      # (0 had run with one worker without a word)
+        raise ValueError(f"--solver-workers: must be >= 1, got {solver_workers}")
+    if bc_seed is not None and bc_seed < 0:
+        raise ValueError(f"--bc-seed: must be >= 0, got {bc_seed}")
+    check_config(cfg, algo)
     seed = 0 if seed is None else int(seed)
     cfg["seed"] = seed
     n = int(cfg["n_envs"])
+    given = out is not None
     if out is None and resume_files and resume_files[3] is not None:
         # a resumed run goes on in its own directory, where its train_info.json and curves are
         # (it had gone to runs/ALGO-FAMILY-seedN, with no previous_runs)
-        out = resume_files[3]
+        out, given = resume_files[3], True
     out = Path(out) if out is not None else Path("runs") / f"{algo}-{family}-seed{seed}"
-    out.mkdir(parents=True, exist_ok=True)
+    created = check_out(out, fresh=not resume_files, given=given)
     t_start = time.perf_counter()
-    set_random_seed(seed)
-
-    hp = hyperparameters_from(cfg)
-    gamma = float(hp.get("gamma", 0.99))
-    venv = wrap_normalize(make_vec(cfg, n, seed, vec_env), cfg, gamma)
-    eval_env = None
-    if (cfg.get("eval") or {}).get("eval_freq", 0) > 0:
-        eval_env = wrap_normalize(make_vec(cfg, 1, seed + EVAL_ENV_SEED_OFFSET), cfg, gamma, training=False)
-    tb = tensorboard_dir(out)
-    cls = _algo_class(algo)
-    steps_before = 0
-    bc_info = None
-    if resume_files:
-        model_path, vn_path, replay_path, _ = resume_files
-        if isinstance(venv, VecNormalize):
-            if vn_path is None:
-                raise FileNotFoundError(f"--resume: no VecNormalize statistics next to {model_path}")
-            venv = VecNormalize.load(str(vn_path), venv.venv)
-            venv.training = not cfg.get("normalize_frozen", False)
-            resume_normalize_settings(venv, cfg, gamma)
-        # hyperparameters changed with --set on this resume run as config.yaml records them (SB3's
-        # load keeps the saved ones unless given; the others are the saved run's own)
-        asked = {item.partition("=")[0].split(".")[1] for item in overrides or []
-                 if item.partition("=")[0].startswith("hyperparameters.")}      # (a nested key: its top)
-        model = cls.load(str(model_path), env=venv, tensorboard_log=tb, device="cpu",
-                         **{k: v for k, v in hp.items() if k in asked})
-        if replay_path is not None and hasattr(model, "load_replay_buffer"):
-            model.load_replay_buffer(str(replay_path))
-        steps_before = int(model.num_timesteps)
-        if timesteps is None:
-            timesteps = max(int(cfg["n_timesteps"]) - steps_before, 0)
-    else:
-        model = cls(cfg.get("policy", "MlpPolicy"), venv, policy_kwargs=policy_kwargs_from(cfg), seed=seed,
-                    tensorboard_log=tb, verbose=verbose, device="cpu", **hp)
-        if timesteps is None:
-            timesteps = int(cfg["n_timesteps"])
-        if bc_pretrain:
-            from .bc import pretrain
-            bc_cfg = dict(cfg.get("bc") or {})
-            freeze = bool(bc_cfg.pop("freeze_normalization", True))
-            bc_info = pretrain(model, family, int(bc_pretrain), env_kwargs=cfg.get("env_kwargs") or {},
-                               bc_cfg=bc_cfg, seed=bc_seed, expert_data=expert_data,
-                               workers=solver_workers, verbose=verbose)
-            if "rl_learning_rate" in bc_info:
-                # the cloning replaced the model's learning rate for the RL phase: record the one
-                # that runs, not the one the config file gave (bc.rl_learning_rate says where from)
-                cfg["hyperparameters"] = dict(cfg.get("hyperparameters") or {})
-                cfg["hyperparameters"]["learning_rate"] = bc_info["rl_learning_rate"]
-            if freeze and isinstance(venv, VecNormalize):
-                # the cloned policy reads observations normalised with the expert data's statistics;
-                # letting RL's own (at first very different) states move them breaks it
-                venv.training = False
-                cfg["normalize_frozen"] = True
-    cfg["n_timesteps_run"] = int(timesteps)
-    save_yaml(cfg, out / "config.yaml")
-
-    use_rich = progress_bar and _rich_available()
-    history = None
-    if resume_files and eval_env is not None:
-        # resumed into a directory with evaluations (its own, in place): append to them, and
-        # replace best/ only with a better evaluation
-        history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)), steps_before)
-    callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET,
-                           history)
-    if bc_info and bc_info.get("actor_warmup"):
-        from .bc import actor_warmup_callback
-        callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))
-    t_learn = time.perf_counter()
-    if timesteps > 0:
-        model.learn(total_timesteps=int(timesteps), callback=callbacks, reset_num_timesteps=not resume_files,
-                    tb_log_name=f"{algo}", progress_bar=use_rich)
-    learn_time = time.perf_counter() - t_learn
-    model.save(str(out / "model.zip"))
-    if isinstance(model.get_vec_normalize_env(), VecNormalize):
-        model.get_vec_normalize_env().save(str(out / "vecnormalize.pkl"))
-    info = {
-        "algo": algo, "family": family, "seed": seed, "num_timesteps": int(model.num_timesteps),
-        "timesteps_this_run": int(model.num_timesteps) - steps_before, "resumed_from": str(resume) if resume else None,
-        "steps_before": steps_before, "n_envs": n, "vec_env": vec_env,
-        "wall_time_s": time.perf_counter() - t_start, "learn_time_s": learn_time,
-        "cpu_threads": torch.get_num_threads(), "bc": bc_info, "command": command,
-        "versions": versions(), "out": str(out),
-    }
-    if eval_env is not None and (out / "eval" / "evaluations.npz").exists():
-        ev = np.load(out / "eval" / "evaluations.npz")
-        info["eval_last"] = {"timesteps": int(ev["timesteps"][-1]), "mean_reward": float(ev["results"][-1].mean()),
-                             "success_rate": float(ev["successes"][-1].mean()) if "successes" in ev and
-                             len(ev["successes"]) else None}
-    prev = out / "train_info.json"
-    if resume_files and prev.exists():
+    venv = eval_env = None
+    try:
+        set_random_seed(seed)
+        hp = hyperparameters_from(cfg)
+        gamma = float(hp.get("gamma", 0.99))
         try:
-            info["previous_runs"] = [json.loads(prev.read_text())]
-        except ValueError:
-            pass
-    prev.write_text(json.dumps(info, indent=2))
-    venv.close()
-    if eval_env is not None:
-        eval_env.close()
+            venv = wrap_normalize(make_vec(cfg, n, seed, vec_env), cfg, gamma)
+            if (cfg.get("eval") or {}).get("eval_freq", 0) > 0:
+                eval_env = wrap_normalize(make_vec(cfg, 1, seed + EVAL_ENV_SEED_OFFSET), cfg, gamma, training=False)
+        except (TypeError, ValueError) as exc:
+            # (a name is checked by check_config; a value by SlewEnv, whose message names the field)
+            raise ValueError(f"env_kwargs: {_first_line(exc)}") from None
+        tb = tensorboard_dir(out)
+        cls = _algo_class(algo)
+        steps_before = 0
+        bc_info = None
+        if resume_files:
+            model_path, vn_path, replay_path, _ = resume_files
+            if isinstance(venv, VecNormalize):
+                if vn_path is None:
+                    raise FileNotFoundError(f"--resume: no VecNormalize statistics next to {model_path}")
+                try:
+                    venv = VecNormalize.load(str(vn_path), venv.venv)
+                except Exception as exc:     # a pickle can fail in many ways; say which file
+                    raise ValueError(f"--resume: {vn_path}: not VecNormalize statistics ({_first_line(exc)})") from None
+                venv.training = not cfg.get("normalize_frozen", False)
+                resume_normalize_settings(venv, cfg, gamma)
+            # hyperparameters changed with --set on this resume run as config.yaml records them (SB3's
+            # load keeps the saved ones unless given; the others are the saved run's own)
+            asked = {item.partition("=")[0].split(".")[1] for item in overrides or []
+                     if item.partition("=")[0].startswith("hyperparameters.")}      # (a nested key: its top)
+            model = cls.load(str(model_path), env=venv, tensorboard_log=tb, device="cpu",
+                             **{k: v for k, v in hp.items() if k in asked})
+            if replay_path is not None and hasattr(model, "load_replay_buffer"):
+                model.load_replay_buffer(str(replay_path))
+            steps_before = int(model.num_timesteps)
+            if timesteps is None:
+                timesteps = max(int(cfg["n_timesteps"]) - steps_before, 0)
+        else:
+            try:
+                model = cls(cfg.get("policy", "MlpPolicy"), venv, policy_kwargs=policy_kwargs_from(cfg), seed=seed,
+                            tensorboard_log=tb, verbose=verbose, device="cpu", **hp)
+            except (TypeError, ValueError, AssertionError, KeyError) as exc:
+                # what check_config cannot see (a policy name, a policy_kwargs entry, a value SB3
+                # checks itself): SB3's message, named as a setting, without its traceback
+                raise ValueError(f"policy / policy_kwargs / hyperparameters: {_first_line(exc)}") from None
+            if timesteps is None:
+                timesteps = int(cfg["n_timesteps"])
+            if bc_pretrain:
+                from .bc import pretrain
+                bc_cfg = dict(cfg.get("bc") or {})
+                freeze = bool(bc_cfg.pop("freeze_normalization", True))
+                bc_info = pretrain(model, family, int(bc_pretrain), env_kwargs=cfg.get("env_kwargs") or {},
+                                   bc_cfg=bc_cfg, seed=bc_seed, expert_data=expert_data,
+                                   workers=solver_workers, verbose=verbose)
+                if "rl_learning_rate" in bc_info:
+                    # the cloning replaced the model's learning rate for the RL phase: record the one
+                    # that runs, not the one the config file gave (bc.rl_learning_rate says where from)
+                    cfg["hyperparameters"] = dict(cfg.get("hyperparameters") or {})
+                    cfg["hyperparameters"]["learning_rate"] = bc_info["rl_learning_rate"]
+                if freeze and isinstance(venv, VecNormalize):
+                    # the cloned policy reads observations normalised with the expert data's statistics;
+                    # letting RL's own (at first very different) states move them breaks it
+                    venv.training = False
+                    cfg["normalize_frozen"] = True
+        cfg["n_timesteps_run"] = int(timesteps)
+        out.mkdir(parents=True, exist_ok=True)
+        save_yaml(cfg, out / "config.yaml")
+
+        use_rich = progress_bar and _rich_available()
+        history = None
+        if resume_files and eval_env is not None:
+            # resumed into a directory with evaluations (its own, in place): append to them, and
+            # replace best/ only with a better evaluation
+            history = earlier_evaluations(out, int((cfg.get("eval") or {}).get("n_eval_episodes", 20)), steps_before)
+        callbacks = _callbacks(cfg, out, eval_env, n, progress_bar and not use_rich, seed + EVAL_ENV_SEED_OFFSET,
+                               history)
+        if bc_info and bc_info.get("actor_warmup"):
+            from .bc import actor_warmup_callback
+            callbacks.callbacks.append(actor_warmup_callback(bc_info["actor_warmup"]))
+    except BaseException:
+        for e in (venv, eval_env):
+            if e is not None:
+                e.close()
+        if created is not None:
+            # a start that failed (or was interrupted) leaves no empty or partial run directory
+            shutil.rmtree(created, ignore_errors=True)
+        raise
+
+    stop = _SignalStop()
+    callbacks.callbacks.insert(0, stop.callback())
+    target = steps_before + int(timesteps)
+    t_learn = time.perf_counter()
+    with stop:
+        if timesteps > 0:
+            model.learn(total_timesteps=int(timesteps), callback=callbacks, reset_num_timesteps=not resume_files,
+                        tb_log_name=f"{algo}", progress_bar=use_rich)
+        learn_time = time.perf_counter() - t_learn
+        stop.hold()           # a signal from here on waits for the save below
+        _atomic_save(model.save, out / "model.zip")
+        if isinstance(model.get_vec_normalize_env(), VecNormalize):
+            _atomic_save(model.get_vec_normalize_env().save, out / "vecnormalize.pkl")
+        if (cfg.get("checkpoint") or {}).get("save_replay_buffer") and hasattr(model, "save_replay_buffer"):
+            # beside model.zip, which --resume then loads it with (a stale one must not outlive its model)
+            _atomic_save(model.save_replay_buffer, out / "replay_buffer.pkl")
+        info = {
+            "algo": algo, "family": family, "seed": seed, "num_timesteps": int(model.num_timesteps),
+            "timesteps_this_run": int(model.num_timesteps) - steps_before,
+            "resumed_from": str(resume) if resume else None,
+            "resumed_file": str(resume_files[0]) if resume_files else None,
+            "steps_before": steps_before, "n_envs": n, "vec_env": vec_env,
+            "wall_time_s": time.perf_counter() - t_start, "learn_time_s": learn_time,
+            "cpu_threads": torch.get_num_threads(), "bc": bc_info, "command": command,
+            "versions": versions(), "out": str(out),
+        }
+        if stop.signum is not None:
+            info["interrupted"] = {"signal": signal.Signals(stop.signum).name, "target_timesteps": target}
+        if eval_env is not None and (out / "eval" / "evaluations.npz").exists():
+            ev = np.load(out / "eval" / "evaluations.npz")
+            info["eval_last"] = {"timesteps": int(ev["timesteps"][-1]), "mean_reward": float(ev["results"][-1].mean()),
+                                 "success_rate": float(ev["successes"][-1].mean()) if "successes" in ev and
+                                 len(ev["successes"]) else None}
+        prev = out / "train_info.json"
+        if resume_files and prev.exists():
+            try:
+                info["previous_runs"] = [json.loads(prev.read_text())]
+            except ValueError:
+                pass
+        tmp = prev.with_name("train_info.partial.json")
+        tmp.write_text(json.dumps(info, indent=2))
+        os.replace(tmp, prev)
+        venv.close()
+        if eval_env is not None:
+            eval_env.close()
+    if stop.signum is not None:
+        raise TrainingInterrupted(info, stop.signum)
     return info
 
 
@@ -640,9 +1031,11 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--n-envs", type=int, metavar="N", help="vectorised copies (default: the config's)")
     p.add_argument("--seed", type=int, metavar="S",
                    help="seed (default 0, or the resumed run's); the eval env uses S + 10000")
-    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<algo>-<family>-seed<S>)")
+    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<algo>-<family>-seed<S>); one that "
+                   "already holds a run is refused unless --resume is given")
     p.add_argument("--resume", metavar="CHECKPOINT",
-                   help="continue from a checkpoint zip, a model.zip or a run directory (VecNormalize loaded too)")
+                   help="continue from a checkpoint zip, a model.zip or a run directory (its newest model: "
+                        "model.zip or the latest checkpoints/ zip; VecNormalize loaded too)")
     p.add_argument("--bc-pretrain", type=int, default=0, metavar="N_EPISODES",
                    help="behaviour-clone the solvers' optimal controls on N expert problems before RL")
     p.add_argument("--expert-data", metavar="FILE.jsonl",
@@ -661,11 +1054,29 @@ def add_arguments(p: argparse.ArgumentParser):
 
 
 def run(args) -> int:
-    info = train(args.algo, args.family, config=args.config, timesteps=args.timesteps, n_envs=args.n_envs,
-                 seed=args.seed, out=args.out, resume=args.resume, bc_pretrain=args.bc_pretrain,
-                 progress_bar=args.progress_bar, vec_env=args.vec_env, overrides=args.set, verbose=args.verbose,
-                 expert_data=args.expert_data, bc_seed=args.bc_seed, solver_workers=args.solver_workers,
-                 command=" ".join(sys.argv), threads=args.threads)
+    try:
+        info = train(args.algo, args.family, config=args.config, timesteps=args.timesteps, n_envs=args.n_envs,
+                     seed=args.seed, out=args.out, resume=args.resume, bc_pretrain=args.bc_pretrain,
+                     progress_bar=args.progress_bar, vec_env=args.vec_env, overrides=args.set, verbose=args.verbose,
+                     expert_data=args.expert_data, bc_seed=args.bc_seed, solver_workers=args.solver_workers,
+                     command=" ".join(sys.argv), threads=args.threads)
+    except TrainingInterrupted as e:
+        # Ctrl-C / SIGTERM: one line saying what was kept and how to go on, no traceback, 128 + signal
+        i, name = e.info, signal.Signals(e.signum).name
+        left = max(i["interrupted"]["target_timesteps"] - i["num_timesteps"], 0)
+        out = shlex.quote(i["out"])
+        files = "model.zip" + (", vecnormalize.pkl" if (Path(i["out"]) / "vecnormalize.pkl").exists() else "")
+        print(f"slew train-rl: interrupted ({name}) at step {i['num_timesteps']}: {files} and train_info.json "
+              f"saved in {i['out']}; continue with: slew train-rl --algo {i['algo']} --family {i['family']} "
+              f"--resume {out} --timesteps {left}", file=sys.stderr)
+        return 128 + int(e.signum)
+    except KeyboardInterrupt:
+        # before training started (nothing to save, no directory left), or a second Ctrl-C that
+        # would not wait for the save
+        print("slew train-rl: interrupted before the model was saved; the checkpoints already written "
+              "(checkpoints/ of the run directory, if any) are kept, and --resume continues from the newest",
+              file=sys.stderr)
+        return 130
     ev = info.get("eval_last")
     extra = ""
     if ev:
