@@ -4,6 +4,7 @@ file, exit 2, before anything runs, and nothing left behind (outside fuzz, sessi
 ``--out`` overwrote the earlier run; failed starts left empty run directories; ``--threads 0``
 and friends accepted without a word; env-demo's path errors only after the episode)."""
 import json
+import os
 import shutil
 
 import pytest
@@ -85,7 +86,8 @@ def test_a_start_that_fails_after_creating_the_directory_removes_it(tmp_path):
             mp.setattr(tr, "_callbacks", fail)
             with pytest.raises(type(exc)):
                 train("ppo", "full-attitude", config=cfg, out=tmp_path / "a" / "b" / "run")
-            assert not (tmp_path / "a").exists()
+            # the run directory goes; its parents stay (they may hold other runs by then)
+            assert not (tmp_path / "a" / "b" / "run").exists() and (tmp_path / "a" / "b").is_dir()
         keep = tmp_path / "existing"
         keep.mkdir()
         (keep / "notes.txt").write_text("mine")
@@ -130,7 +132,15 @@ def test_resume_of_a_run_directory_takes_its_newest_model(tiny_run, tmp_path):
     ck = run / "checkpoints"
     assert newest_in_run(run) == run / "model.zip"                     # 128 steps, as the last checkpoint
     shutil.copy(ck / "rl_model_64_steps.zip", run / "model.zip")      # a model.zip older than a checkpoint
+    t128 = (ck / "rl_model_128_steps.zip").stat().st_mtime
+    os.utime(run / "model.zip", (t128 - 10, t128 - 10))
     assert newest_in_run(run) == ck / "rl_model_128_steps.zip"
+    # the most recent, not the most steps: a run resumed in place from an older checkpoint leaves
+    # the abandoned line's later checkpoints behind (a review: its 256-step one was taken over the
+    # model.zip just trained)
+    os.utime(run / "model.zip", (t128 + 10, t128 + 10))
+    assert newest_in_run(run) == run / "model.zip"
+    os.utime(run / "model.zip", (t128 - 10, t128 - 10))
     (run / "model.zip").unlink()                                      # killed before its end: no model.zip
     files = find_checkpoint_files(run)
     assert files[0] == ck / "rl_model_128_steps.zip" and files[1] == ck / "rl_model_vecnormalize_128_steps.pkl"
@@ -140,6 +150,16 @@ def test_resume_of_a_run_directory_takes_its_newest_model(tiny_run, tmp_path):
     shutil.rmtree(ck)
     with pytest.raises(FileNotFoundError, match="holds no model.zip and no checkpoints"):
         find_checkpoint_files(tmp_path)
+
+
+def test_a_failed_start_removes_only_its_own_run_directory(tmp_path):
+    # a review: check_out returned the first missing parent, and a failed start into
+    # runs/sweep/a removed runs/sweep, with the run training into runs/sweep/b
+    from training.rl.train import check_out
+    out = tmp_path / "sweep" / "a"
+    assert check_out(out, fresh=True, given=True) == out
+    out.mkdir(parents=True)
+    assert check_out(out, fresh=True, given=True) is None
 
 
 def test_old_runs_that_switched_evaluation_off_with_zero_still_resume(tiny_run, tmp_path):

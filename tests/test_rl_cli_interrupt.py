@@ -24,14 +24,18 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TARGET = 10 ** 7          # far more steps than a test runs: only the signal ends it
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_a_signal_saves_the_run_where_it_stopped_and_resume_continues(tmp_path, sig, code):
+@pytest.mark.parametrize("sig, code, vec", [(signal.SIGINT, 130, "dummy"), (signal.SIGTERM, 143, "dummy"),
+                                            # to the whole group, subprocess workers included (timeout,
+                                            # scancel; a review: the killed workers left nothing saved)
+                                            (signal.SIGTERM, 143, "subproc")])
+def test_a_signal_saves_the_run_where_it_stopped_and_resume_continues(tmp_path, sig, code, vec):
     cfg = tiny_config(tmp_path, checkpoint={"save_freq": 10 ** 6})      # no checkpoint in time: all from the stop
     run = tmp_path / "run"
     p = subprocess.Popen([sys.executable, "-m", "training.cli", "train-rl", "--algo", "ppo", "--family",
-                          "full-attitude", "--config", str(cfg), "--timesteps", str(TARGET), "--out", str(run)],
+                          "full-attitude", "--config", str(cfg), "--timesteps", str(TARGET), "--out", str(run),
+                          "--vec-env", vec],
                          cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT), stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True,
+                         stderr=subprocess.PIPE, text=True, start_new_session=vec == "subproc",
                          # as from a terminal: a test run started in the background (``cmd &`` in a
                          # shell without job control) hands its children SIGINT ignored
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -40,7 +44,10 @@ def test_a_signal_saves_the_run_where_it_stopped_and_resume_continues(tmp_path, 
         while not (run / "config.yaml").exists() and time.time() < deadline:   # written just before learn()
             time.sleep(0.05)
         time.sleep(1.0)
-        p.send_signal(sig)
+        if vec == "subproc":
+            os.killpg(p.pid, sig)
+        else:
+            p.send_signal(sig)
         out, err = p.communicate(timeout=20)
     finally:
         if p.poll() is None:

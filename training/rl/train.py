@@ -359,23 +359,22 @@ def _checkpoint_steps(path: Path) -> Optional[int]:
 
 
 def newest_in_run(run: Path) -> Path:
-    """The model a run directory is resumed from: the newest of ``model.zip`` and
-    ``checkpoints/rl_model_<N>_steps.zip`` by timesteps (``model.zip`` on a tie, or when its
-    count cannot be read). A run killed before its end (SIGKILL, a crash) has checkpoints but
-    no ``model.zip``, or a ``model.zip`` older than them (a resumed run killed in place)."""
-    best, best_steps = None, -1
+    """The model a run directory is resumed from: the most recently written of ``model.zip`` and
+    ``checkpoints/rl_model_<N>_steps.zip`` (``model.zip`` on a tie). A run killed before its end
+    (SIGKILL, a crash) has checkpoints but no ``model.zip``, or a ``model.zip`` older than them (a
+    resumed run killed in place). Not the largest step count: a run resumed in place from an
+    older checkpoint leaves the abandoned line's later checkpoints behind (a review)."""
+    found = []
     model = run / "model.zip"
     if model.exists():
-        steps = _zip_timesteps(model)
-        best, best_steps = model, (float("inf") if steps is None else steps)
+        found.append((model.stat().st_mtime, 1, model))
     ck = run / "checkpoints"
     for p in (sorted(ck.glob("rl_model_*_steps.zip")) if ck.is_dir() else []):
-        steps = _checkpoint_steps(p)
-        if steps is not None and steps > best_steps:
-            best, best_steps = p, steps
-    if best is None:
+        if _checkpoint_steps(p) is not None:
+            found.append((p.stat().st_mtime, 0, p))
+    if not found:
         raise FileNotFoundError(f"--resume: {run} holds no model.zip and no checkpoints/rl_model_<N>_steps.zip")
-    return best
+    return max(found)[2]
 
 
 def find_checkpoint_files(resume) -> tuple[Path, Optional[Path], Optional[Path], Optional[Path]]:
@@ -445,8 +444,11 @@ def run_files(out: Path) -> list:
 
 
 def check_out(out: Path, fresh: bool, given: bool) -> Optional[Path]:
-    """Refuse an ``--out`` a run cannot go to, before anything is built; returns the first missing
-    directory of ``out`` (removed again if the start fails: no empty directory left behind), or None.
+    """Refuse an ``--out`` a run cannot go to, before anything is built; returns ``out`` if it does
+    not exist yet (removed again if the start fails: no empty run directory left behind), or None.
+    Only ``out`` itself: its missing parents, once made, may hold other runs by the time this one
+    fails (a review: a failed start into runs/sweep/a had removed runs/sweep, and with it the
+    run training into runs/sweep/b).
 
     ``fresh`` (no ``--resume``): an ``out`` holding a run is refused. A new run wrote its
     ``model.zip``, ``best/``, ``eval/evaluations.npz`` and ``train_info.json`` over the old
@@ -460,14 +462,14 @@ def check_out(out: Path, fresh: bool, given: bool) -> Optional[Path]:
         if found:
             raise ValueError(f"{name}: {out} already holds a run ({', '.join(found)}); a new run would overwrite "
                              f"it: continue it with --resume {out}, or choose another --out")
-    missing, parent = None, out
+    parent = out
     while not parent.exists():
-        missing, parent = parent, parent.parent
+        parent = parent.parent
     if not parent.is_dir():
         raise ValueError(f"{name}: cannot create {out}: {parent} is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{name}: cannot write in {parent}")
-    return missing
+    return None if out.exists() else out
 
 
 # --------------------------------------------------------------------------- Ctrl-C / SIGTERM
@@ -525,12 +527,15 @@ class _SignalStop:
 
 
 def _ignore_sigint_in_workers(env):
-    """``wrapper_class`` of ``SubprocVecEnv`` copies: a Ctrl-C at a terminal goes to the whole
+    """``wrapper_class`` of ``SubprocVecEnv`` copies: a Ctrl-C at a terminal (or a SIGTERM) goes to the whole
     process group, and a worker it killed left the parent nothing to step, and no model to save.
     The parent stops them when it has saved (a worker also ends when its pipe closes)."""
     import multiprocessing
     if multiprocessing.parent_process() is not None:
+        # (SIGTERM too: timeout, scancel and kill -TERM -PGID signal the whole group, and a worker
+        # it killed had left the parent nothing to save from; a worker still ends with its pipe)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
     return env
 
 
