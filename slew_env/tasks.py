@@ -24,7 +24,7 @@ import numpy as np
 from .core import sampling as _s
 from .core import task as _t
 from .checks import is_finite, is_real, whole
-from .problem import MAX_AXIS_SPREAD, SlewProblem, _vector
+from .problem import MAX_AXIS_SPREAD, SlewProblem, _vector, check_time_unit
 
 # Uniforms per sampling attempt. A failed attempt (cone rejections exhausted the
 # block) is retried from scratch on the next block of the same generator.
@@ -196,7 +196,6 @@ class TaskDistribution:
         u = np.asarray(self.torque_max)
         u_spread = float(u.max() / u.min())
         if self.inertia_mode == "fixed":
-            from .problem import check_time_unit
             check_time_unit(np.asarray(self.inertia), u, "inertia, torque_max")
             accel = u / np.asarray(self.inertia)
             worst, fields = float(accel.max() / accel.min()), "inertia, torque_max"

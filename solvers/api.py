@@ -59,7 +59,7 @@ from .kernel_loading import ensure_kernels
 from .guesses import Guess
 from .eigenaxis import baseline_time
 from . import waypoint_slew
-from .eigenaxis_answer import N_GRID, eigenaxis_answer, eigenaxis_inapplicable, no_slower_than_eigenaxis
+from .eigenaxis_answer import N_GRID, _not_compared, eigenaxis_answer, eigenaxis_inapplicable, no_slower_than_eigenaxis
 from .solution import STATUS_BUDGET_EXHAUSTED, SlewSolution
 from .switch_time_opt import switch_time_applies
 from . import auto_route, cone_routes, multistart, stage_budget, warm_routes
@@ -545,8 +545,7 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
         # the time left pays for (the fallback's grid; a p-norm profile on the full grid had taken
         # 32 ms after a 0.3 s budget was spent, an outside replay, session 42)
         grid = (_fallback_grid(prob, t0 + float(options["time_budget"]) - time.perf_counter(), fine=True)
-                if "time_budget" in options and prob.qf is not None and prob.is_rest_to_rest and not prob.cones
-                else None)
+                if "time_budget" in options and _not_compared(prob) is None else None)
         sol = no_slower_than_eigenaxis(prob, sol, t0, n_grid=grid)
     if info:
         sol.warm_start = info

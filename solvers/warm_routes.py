@@ -61,19 +61,32 @@ TABLE_MIN_LEFT = 0.01
 TABLE_RESERVE = 0.015
 
 
-def _table_may_answer(prob) -> bool:
-    """Whether ``singular_table_route`` would optimise sequences for ``prob`` (enough of the shipped
-    singular table's nearest problems are singular); ``False`` where the table is missing, damaged
-    or does not cover the problem."""
+def _singular_query(prob):
+    """``(table, share, sequences)`` of the shipped singular table for ``prob``, or ``None`` where
+    no table ships or it does not cover the problem; a damaged table raises (``OSError``,
+    ``ValueError``, ``IndexError``)."""
     from . import warmstart
+    table = warmstart.default_singular_table()
+    if table is None or table.covers(prob):
+        return None
+    share, sequences = table.query(prob)
+    return table, share, sequences
+
+
+def _table_answers(table, share) -> bool:
+    """Whether the table optimises sequences at this ``share`` of singular neighbours (its vote,
+    or the uncertain tier's lower share)."""
+    return share >= min(table.vote, SINGULAR_UNCERTAIN_SHARE)
+
+
+def _table_may_answer(prob) -> bool:
+    """Whether ``singular_table_route`` would optimise sequences for ``prob``; ``False`` where the
+    table is missing, damaged or does not cover the problem."""
     try:
-        table = warmstart.default_singular_table()
-        if table is None or table.covers(prob):
-            return False
-        share, _ = table.query(prob)
+        q = _singular_query(prob)
     except (OSError, ValueError, IndexError):
         return False
-    return share >= min(table.vote, SINGULAR_UNCERTAIN_SHARE)
+    return q is not None and _table_answers(q[0], q[1])
 
 
 def challenge_learned_answer(prob, warm, info, col_opts, options, t0) -> SlewSolution:
@@ -153,18 +166,17 @@ def singular_table_route(prob, options, info, col_opts=None, exact_check=True):
     table's answers alone, as ``slew evaluate`` measures them). ``None`` when the table does not
     apply or gives no such answer; ``info["singular_table"]`` records what happened (a damaged
     table file: the error; ``uncertain`` and ``exact_check`` for the second tier)."""
-    from . import warmstart
     t0 = time.perf_counter()
     try:
-        table = warmstart.default_singular_table()
-        if table is None or table.covers(prob):
-            return None, (0, 0)
-        share, sequences = table.query(prob)
+        q = _singular_query(prob)
     except (OSError, ValueError, IndexError) as e:   # a damaged shipped file: the route without it
         info["singular_table"] = {"error": f"{type(e).__name__}: {e}"[:300]}
         return None, (0, 0)
+    if q is None:
+        return None, (0, 0)
+    table, share, sequences = q
     rec = info["singular_table"] = {"share": share, "vote": table.vote, "used": False}
-    if share < min(table.vote, SINGULAR_UNCERTAIN_SHARE):
+    if not _table_answers(table, share):
         return None, (0, 0)
     uncertain = share < table.vote
     rec["uncertain"] = uncertain

@@ -21,9 +21,8 @@ from slew_env import SlewProblem
 from ..guesses import Guess
 from ..core import warmstart_kernels as _k
 from .cone_features import MAX_CONES, N_CONE_FEATURES, cone_canonical_form, cone_unsupported_reason, solution_from_canonical
-from .model import ModelFileError, checked_domain
-from .nearest import (NN_FORMAT, NN_FORMAT_VERSION, check_signs, checked_neighbours, neighbour_count, table_card,
-                      table_coverage, table_rows)
+from .model import ModelFileError
+from .nearest import NN_FORMAT, NN_FORMAT_VERSION, neighbour_count, table_card, table_coverage, table_fields
 
 ARRAYS = ("X", "Z", "T", "T_ref", "U", "F", "touch", "frac", "log_nu")
 
@@ -50,12 +49,7 @@ class ConeNearestNeighbourModel:
         if not (np.all(np.isfinite(a["X"])) and np.all(np.isfinite(a["Z"])) and np.all(a["T"] > 0)
                 and np.all(a["T_ref"] > 0) and np.all(np.isfinite(a["T"])) and np.all(np.isfinite(a["T_ref"]))):
             raise ValueError("X, Z, T, T_ref: the features and costates must be finite and the times positive")
-        check_signs(a["U"])
-        self.k = checked_neighbours(k, n)
-        self.domain = checked_domain(domain)
-        if not isinstance(name, str):
-            raise ValueError(f"name: expected text, got {name!r}"[:200])
-        self.name = name
+        self.k, self.domain, self.name = table_fields(a["U"], k, domain, name)
         # the data files its solutions came from, as slew train's card records them (a table
         # exported since session 39; a table is trained on again: slew train --data NAME.nn.npz)
         self.data_files = []
@@ -104,7 +98,7 @@ class ConeNearestNeighbourModel:
     @classmethod
     def from_card(cls, d, card, path):
         try:
-            k, domain, name = table_card(card, table_rows(d), "nearest-neighbour (pointing-cones)")
+            k, domain, name = table_card(card, "nearest-neighbour (pointing-cones)")
             data_files = card.get("data_files") or []
             if not isinstance(data_files, list):
                 raise ModelFileError(f"card.data_files: expected a list of data files, got {data_files!r}"[:300])

@@ -56,12 +56,22 @@ def check_signs(U, field="U"):
         raise ValueError(f"{field}: the first-arc signs must be ±1, {int(np.sum(np.abs(U) != 1.0))} entries are not")
 
 
-def table_card(card, n_rows, default_name):
+def table_card(card, default_name):
     """The neighbour table card's fields checked: ``(k, domain, name)`` (``k`` 3 where absent;
     ``ModelFileError`` naming the field)."""
     k = card_whole(card, "k", 1, MAX_NEIGHBOURS, default=3, why=NEIGHBOURS_WHY)
-    checked_neighbours(k, n_rows, "card.k")
     return k, checked_domain(card.get("domain")), card_text(card, "name", default_name)
+
+
+def table_fields(U, k, domain, name):
+    """``(k, domain, name)`` of a neighbour table being built, checked, with its first-arc signs
+    ``U`` (the full-attitude and the pointing-cones tables alike)."""
+    check_signs(U)
+    k = checked_neighbours(k, None)
+    domain = checked_domain(domain)
+    if not isinstance(name, str):
+        raise ValueError(f"name: expected text, got {name!r}"[:200])
+    return k, domain, name
 
 
 def table_rows(d, key="X"):
@@ -114,12 +124,7 @@ class NearestNeighbourModel:
         if not (np.all(np.isfinite(self.X)) and np.all(np.isfinite(self.Z)) and np.all(self.T > 0)
                 and np.all(self.T_eig > 0) and np.all(np.isfinite(self.T)) and np.all(np.isfinite(self.T_eig))):
             raise ValueError("X, Z, T, T_eig: the features and costates must be finite and the times positive")
-        check_signs(self.U)
-        self.k = checked_neighbours(k, n)
-        self.domain = checked_domain(domain)
-        if not isinstance(name, str):
-            raise ValueError(f"name: expected text, got {name!r}"[:200])
-        self.name = name
+        self.k, self.domain, self.name = table_fields(self.U, k, domain, name)
         self.scale = np.maximum(self.X.std(axis=0), 1e-3)
         self.tree = cKDTree(self.X / self.scale)
 
@@ -138,7 +143,7 @@ class NearestNeighbourModel:
         if kind != "full-attitude":
             raise ModelFileError(f"model: {path}: unknown table kind {kind!r}"[:300])
         try:
-            k, domain, name = table_card(card, table_rows(d), "nearest-neighbour")
+            k, domain, name = table_card(card, "nearest-neighbour")
             return cls.from_arrays(d, k=k, domain=domain, name=name)
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFileError(f"model: {path} is not a usable nearest-neighbour table ({e})") from None

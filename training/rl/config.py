@@ -5,6 +5,8 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+from slew_env.checks import is_real
+
 from . import ALGOS
 
 
@@ -142,18 +144,13 @@ def read_yaml(path, what: str = "a mapping") -> dict:
     return data
 
 
-def _is_real(v) -> bool:
-    import numbers
-    return isinstance(v, numbers.Real) and not isinstance(v, bool)
-
-
 def _number(key: str, v, low=None, low_open: bool = False, integer: bool = False):
     """``v`` as a finite number (an int if ``integer``; ``1.0e5`` is taken as 100000) >= ``low``
     (> if ``low_open``); a ``ValueError`` naming ``key`` otherwise. YAML reads ``nan`` or ``1e5``
     as text, which SB3 would only trip over mid-training."""
     import math
 
-    if not _is_real(v) or not math.isfinite(v):
+    if not is_real(v) or not math.isfinite(v):
         raise ValueError(f"{key}: expected a finite {'integer' if integer else 'number'}, got {v!r}")
     if integer:
         if v != int(v):

@@ -73,7 +73,8 @@ def load_policy(policy):
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from .bc import _env_for
-    from .train import _first_line, read_yaml
+    from .config import read_yaml
+    from .train import _first_line
 
     model_path, vn_path, cfg_path = _find_policy_files(policy)
     cfg = read_yaml(cfg_path, "a mapping (the run's configuration)")     # a one-line error naming the file

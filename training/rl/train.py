@@ -43,7 +43,6 @@ line giving the ``--resume`` command that continues it.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import os
 import platform
@@ -58,14 +57,13 @@ import warnings
 from pathlib import Path
 from typing import Optional
 
+from slew_env.checks import is_real
+
 from . import ALGOS, EVAL_ENV_SEED_OFFSET, FAMILIES
 
-# the configuration lives in .config; its names stay importable from here
-from .config import (  # noqa: F401
-    CONFIG_DIR, CONFIG_KEYS, DEFAULTS, NORMALIZE_KEYS, _ACTIVATIONS, _OWN_ARGUMENTS, _SCHEDULES,
-    _float_or_text, _is_real, _mapping, _number, _schedule, _yaml_error, apply_overrides, check_config,
-    default_config_path, hyperparameters_from, load_config, policy_kwargs_from, read_yaml, _algo_class
-)
+# the configuration (the YAML files, --set, the checks of every setting)
+from .config import (_algo_class, apply_overrides, check_config, hyperparameters_from, load_config,
+                     policy_kwargs_from, read_yaml)
 
 # --------------------------------------------------------------------------- environments
 def make_env_kwargs(cfg: dict) -> dict:
@@ -594,7 +592,7 @@ def train(algo: str, family: str, config=None, timesteps: Optional[int] = None, 
             # runs before check_config switched these off with a frequency of 0; their config.yaml
             # says so, and resuming them must not be refused for it
             sec = cfg.get(section)
-            if isinstance(sec, dict) and _is_real(sec.get(freq)) and sec[freq] <= 0:
+            if isinstance(sec, dict) and is_real(sec.get(freq)) and sec[freq] <= 0:
                 cfg[section] = None
         if seed is None:
             seed = int(cfg.get("seed", 0))
