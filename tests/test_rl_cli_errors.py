@@ -201,6 +201,9 @@ def test_evaluate_rl_names_a_corrupt_file_of_the_policy(tiny_run, tmp_path, caps
     (["--plot-k", "-1"], "--plot-k: must be >= 0, got -1"),
     (["--solver-workers", "0"], "--solver-workers: must be >= 1, got 0"),
     (["--solve-options", "{bad"], "--solve-options: not valid JSON"),
+    # content that parses but that no solve accepts: refused before the report directory is made
+    (["--solve-options", '{"time_budgt": 5}'], "unknown option(s) ['time_budgt']"),
+    (["--solve-options", '{"time_budget": -1}'], "time_budget: must be a positive number"),
 ])
 def test_evaluate_rl_refuses_bad_counts(tiny_run, tmp_path, capsys, extra, needle):
     code = main(["evaluate-rl", str(tiny_run), "--n", "1", "--no-progress", "--out", str(tmp_path / "ev"),

@@ -71,3 +71,25 @@ def test_a_signal_saves_the_run_where_it_stopped_and_resume_continues(tmp_path, 
     info2 = json.loads((run / "train_info.json").read_text())
     assert info2["steps_before"] == steps and info2["num_timesteps"] == steps + 64
     assert "interrupted" not in info2 and info2["previous_runs"][0]["interrupted"]["signal"] == sig.name
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_second_signal_that_will_not_wait_exits_as_that_signal(monkeypatch, capsys, sig, code):
+    """The second signal cuts the wait for the step (not the save) and the exit status says which
+    signal it was (a second SIGTERM had exited 130, as if Ctrl-C; session 42's note)."""
+    from training.rl import train as train_mod
+
+    stop = train_mod._SignalStop()
+    stop._handle(sig, None)                       # the first only asks learn() to stop
+    assert stop.signum == sig
+    with pytest.raises(train_mod.SignalInterrupt) as e:
+        stop._handle(sig, None)
+    assert e.value.signum == sig and isinstance(e.value, KeyboardInterrupt)
+    stop.hold()
+    stop._handle(sig, None)                       # not during the save
+
+    def second_signal(*a, **k):
+        raise train_mod.SignalInterrupt(sig)
+    monkeypatch.setattr(train_mod, "train", second_signal)
+    assert main(["train-rl", "--algo", "ppo", "--family", "full-attitude", "--timesteps", "64"]) == code
+    assert "interrupted before the model was saved" in capsys.readouterr().err

@@ -82,10 +82,11 @@ def solve_problems(family: str, n: int, seed: int, path=None, workers: int = 1, 
     from training.dataset import load
     from training.generate import DEFAULT_SOLVE_FN, GenerationSpec, generate
 
-    path = Path(path) if path is not None else default_solutions_path(family, seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    # (the spec checks the route and its options first: nothing is made for a bad one)
     spec = GenerationSpec(family=family, seed=int(seed), n=int(n), solve_options=dict(solve_options or {}),
                           solve_fn=solve_fn or DEFAULT_SOLVE_FN)
+    path = Path(path) if path is not None else default_solutions_path(family, seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
     have = {r["index"] for r in load(path)} if path.exists() else set()
     if n > 0 and not set(range(n)) <= have:   # all there: read only (no lock, no solver)
         summary = generate(spec, path, workers=max(int(workers), 1), progress=progress)

@@ -481,6 +481,15 @@ class TrainingInterrupted(KeyboardInterrupt):
         self.info, self.signum = info, signum
 
 
+class SignalInterrupt(KeyboardInterrupt):
+    """A second SIGINT / SIGTERM that would not wait for the save: ``signum`` gives the exit
+    status (128 + signal) a shell expects of that signal."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
 class _SignalStop:
     """SIGINT / SIGTERM while training: the first asks ``learn`` to stop at the next environment step
     (``callback``, which returns False), so that the model can be saved whole; a second one raises
@@ -507,7 +516,7 @@ class _SignalStop:
         if self.signum is None:
             self.signum = signum
         elif not self._holding:
-            raise KeyboardInterrupt
+            raise SignalInterrupt(signum)
 
     def hold(self):
         self._holding = True
@@ -812,13 +821,13 @@ def run(args) -> int:
               f"saved in {i['out']}; continue with: slew train-rl --algo {i['algo']} --family {i['family']} "
               f"--resume {out} --timesteps {left}", file=sys.stderr)
         return 128 + int(e.signum)
-    except KeyboardInterrupt:
-        # before training started (nothing to save, no directory left), or a second Ctrl-C that
-        # would not wait for the save
+    except KeyboardInterrupt as e:
+        # before training started (nothing to save, no directory left), or a second Ctrl-C (or
+        # SIGTERM: exit 143, as a shell expects) that would not wait for the save
         print("slew train-rl: interrupted before the model was saved; the checkpoints already written "
               "(checkpoints/ of the run directory, if any) are kept, and --resume continues from the newest",
               file=sys.stderr)
-        return 130
+        return 128 + int(getattr(e, "signum", signal.SIGINT))
     ev = info.get("eval_last")
     extra = ""
     if ev:
