@@ -84,7 +84,12 @@ FALLBACK_GRID_PNORM_GYRO = 1000
 # (per-axis 1,000 steps: at most 3.4e-4 slower than 16,000 on two samples of random bodies, 40
 # and a review's; p-norm with a gyroscopic term, 250 steps: at most 6.1e-4 slower than 4,000; a
 # p-norm profile without one is exact on any grid). Below a few milliseconds the floors take
-# longer than what is left: 0.8-1.8 ms late (per-axis) at budgets of 0.1-1 ms
+# longer than what is left: 0.8-1.8 ms late (per-axis) at budgets of 0.1-1 ms. Re-measured
+# 2026-12-07 with the record check and the unit scaling that the planner has since gained, on a
+# loaded machine (runs/s43/fb_cost.py, 30 problems a row, per leg): per-axis 1,000 steps median
+# 1.4 ms, max 3.0 ms (the model: 3.0 ms); 16,000 steps median 9.9, max 22.6 ms (25.5 ms);
+# with cones 1.9 / 2.0 ms and 13.2 / 13.8 ms; p = 2 with a gyroscopic term, 1,000 steps, median
+# 11.5, max 13.7 ms (19.5 ms): the costs still cover them
 FALLBACK_STEP_COST = {"no-gyro": (1.5e-3, 1.5e-6), "pnorm-gyro": (4.5e-3, 1.5e-5)}
 FALLBACK_GRID_FLOOR = {"no-gyro": 1000, "pnorm-gyro": 250}
 
