@@ -54,3 +54,27 @@ def test_the_model_cards_data_are_checked_too(tmp_path, capsys):
     assert "are the training problems of full-attitude-small.jsonl (in the model's card)" in capsys.readouterr().err
     card = json.loads(str(__import__("numpy").load(tmp_path / "run" / "model.npz")["card"]))
     assert card["training"]["data_files"][0]["seed"] == 100 and len(card["training"]["data_files"][0]["sha256"]) == 64
+
+
+SHIPPED_TABLE = os.path.join(os.path.dirname(HERE), "solvers", "warmstart", "models", "full-attitude.nn.npz")
+
+
+def test_the_shipped_full_attitude_table_is_the_lookup_itself(tmp_path):
+    """The datasets behind the shipped table are not shipped: the table alone gives the
+    nearest-neighbour row (a new user's audit, session 43: it was refused, exit 2)."""
+    assert _evaluate(tmp_path, "--n", "2", "--train-data", SHIPPED_TABLE) == 0
+    rows = [json.loads(line) for line in open(tmp_path / "ev" / "results.jsonl")]
+    nn = [r for r in rows if r["guess"] == "nearest-neighbour"]
+    learned = {r["index"]: r for r in rows if r["guess"] == "learned"}
+    # held-out problems 0 and 1: the lookup converges to the learned guess's extremal
+    assert len(nn) == 2 and all(r["covered"] and r["success"] and r["exact"] for r in nn)
+    assert all(abs(r["tf"] - learned[r["index"]]["tf"]) < 1e-9 for r in nn)
+    assert not (tmp_path / "ev" / "nearest.nn.npz").exists()     # used as it is, not rebuilt
+    assert json.load(open(tmp_path / "ev" / "summary.json"))["train_data"] == [SHIPPED_TABLE]
+
+
+def test_a_full_attitude_table_with_other_files_is_refused(tmp_path, capsys):
+    assert _evaluate(tmp_path, "--train-data", SHIPPED_TABLE, DATA) == 2
+    err = capsys.readouterr().err
+    assert "cannot be merged with other files" in err and SHIPPED_TABLE in err
+    assert not (tmp_path / "ev").exists()

@@ -15,7 +15,9 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=20261122, help="seed of the held-out problems (fresh: not a data seed)")
     p.add_argument("--train-data", nargs="*", default=None, metavar="FILE.jsonl",
                    help="the model's training data: builds the nearest-neighbour baseline from it (dataset files, "
-                        "or for pointing-cones the solution table NAME.nn.npz the model was trained on)")
+                        "or for pointing-cones the solution table NAME.nn.npz the model was trained on; for full-attitude a "
+                        "solution table alone is the lookup itself, e.g. the shipped "
+                        "solvers/warmstart/models/full-attitude.nn.npz)")
     p.add_argument("--baseline-n", type=int, default=100,
                    help="problems for the slow baselines: eigenaxis, random, collocation (default 100)")
     p.add_argument("--budget", type=float, default=5.0,

@@ -103,8 +103,8 @@ def add_arguments(p):
                         "--method eigenaxis: profiles coarse enough to fit, down to a floor)")
     p.add_argument("--fallback", choices=("eigenaxis",), default=None,
                    help="where no verified time-optimal answer comes within the budget, return the eigenaxis slew "
-                        "(rest to rest; a pointing target at its reference attitude; with cones only where its "
-                        "path clears them; verified, not time-optimal)")
+                        "(rest to rest; a pointing target at its reference attitude; with cones directly where its "
+                        "path clears them, else through waypoints round them; verified, not time-optimal)")
     p.add_argument("--repeat", type=int, default=3, metavar="N",
                    help="single problem: solve N more times and report the median time of a repeated solve "
                         "(the first call in a process also loads compiled code; default 3, 0 to skip)")

@@ -635,7 +635,8 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument("--seed", type=int, default=DEFAULT_EVAL_SEED,
                    help=f"seed of the held-out problems (default {DEFAULT_EVAL_SEED})")
     p.add_argument("--out", metavar="DIR", help="report directory (default <policy dir>/eval-<family>-seed<S>; "
-                   "eval-<zip name>-<family>-seed<S> for a checkpoint or any zip but model.zip / best_model.zip); "
+                   "eval-<zip name>-<family>-seed<S> for a checkpoint or any zip but model.zip / best_model.zip; "
+                   "runs/eval-<policy dir name>-<family>-seed<S> for a shipped policy); "
                    "report.md, results.json and overlay.png already there are replaced")
     p.add_argument("--plot-k", type=int, default=3, help="problems in overlay.png (default 3; 0: no plot)")
     p.add_argument("--solutions", metavar="FILE.jsonl",

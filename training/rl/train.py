@@ -800,7 +800,7 @@ def add_arguments(p: argparse.ArgumentParser):
                    help="torch CPU threads (default 1; more is slower on a small shared machine)")
     p.add_argument("--vec-env", default="dummy", choices=("dummy", "subproc"), help="DummyVecEnv or SubprocVecEnv")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set hyperparameters.learning_rate=1e-4 (repeatable)")
+                   help="override a config value, e.g. --set hyperparameters.learning_rate=1.0e-4 (repeatable; the value is read as YAML, where 1e-4 is text)")
     p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")
 
 

@@ -274,7 +274,9 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
               file=sys.stderr)
     os.makedirs(out, exist_ok=True)
     nn_path = None
-    if train_data:
+    if full_attitude_table(train_data, family):
+        nn_path = full_attitude_table(train_data, family)      # the lookup as it is
+    elif train_data:
         nn_path = build_nn(train_data, os.path.join(out, "nearest.nn.npz"), family=family)
     t_inference = inference_time(model, family, seed)   # before the pool: a quiet process
     t_network = network_time(model, family, seed)
@@ -338,11 +340,38 @@ def evaluate(family="full-attitude", n=1000, seed=20261122, model_path=None, tra
     return summary
 
 
+def full_attitude_table(train_data, family):
+    """The one ``--train-data`` file when it is a full-attitude solution table (``NAME.nn.npz``,
+    such as the shipped ``full-attitude.nn.npz``): it is the nearest-neighbour lookup itself, used
+    as it is (the dataset files it was built from are large and not shipped). ``None`` otherwise.
+    A table given with other files is refused: it cannot be merged with them."""
+    from .table_data import is_table
+    tables = [p for p in train_data or [] if is_table(p)]
+    if family != "full-attitude" or not tables:
+        return None
+    if len(train_data) > 1:
+        raise ValueError(f"--train-data: {tables[0]}: a full-attitude solution table is the lookup itself and "
+                         f"cannot be merged with other files; give the table alone, or the dataset files")
+    from solvers.warmstart import load_model
+    from solvers.warmstart.nearest import NearestNeighbourModel
+    try:
+        table = load_model(tables[0])
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--train-data: {tables[0]}: {e}") from None
+    if not isinstance(table, NearestNeighbourModel):
+        raise ValueError(f"--train-data: {tables[0]}: not a full-attitude solution table "
+                         f"({type(table).__name__}); give the full-attitude dataset files or such a table")
+    return os.fspath(tables[0])
+
+
 def check_train_data(train_data, family) -> None:
     """``--train-data`` files are datasets of the held-out family (another family's records have
     no canonical form of this one: the error named neither the option nor the file); a
-    pointing-cones solution table (``NAME.nn.npz``) is taken as its solutions."""
+    pointing-cones solution table (``NAME.nn.npz``) is taken as its solutions, and a full-attitude
+    one (alone) as the lookup itself (``full_attitude_table``)."""
     from .data import data_meta
+    if full_attitude_table(train_data, family) is not None:
+        return
     for path in train_data or []:
         try:
             meta = data_meta(path)
@@ -374,7 +403,7 @@ def held_out_in_training(family, seed, train_data=None, model=None) -> list:
             out += named(d.get("sources"), f"behind {d.get('file')}, {where}")
         return out
     hits = []
-    for path in train_data or []:
+    for path in [] if full_attitude_table(train_data, family) else train_data or []:
         meta = data_meta(path)      # (a solution table: the data files its card names)
         if same(meta.get("family"), meta.get("seed"), meta.get("distribution")):
             hits.append(os.fspath(path))
