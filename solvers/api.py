@@ -36,8 +36,9 @@ candidates, the eigenaxis guess, its images under the problem's symmetries, the
 per-axis switching-structure templates, the long-way eigenaxis, then seeded
 perturbations — and returns the best verified one.
 It stops when ``max_candidates`` have been tried; or, once ``min_candidates`` have
-been tried, when ``enough`` have converged and the best final time was reached by at
-least two of them; or when the ``time_budget`` runs out. After the first verified extremal
+been tried, when ``enough`` (2 or more) have converged and the best final time was reached by at
+least two of them, or with ``enough=1`` at the first verified extremal not slower than the
+eigenaxis slew; or when the ``time_budget`` runs out. After the first verified extremal
 reached along a built-in candidate's smoothing path, each later per-axis candidate's attempt
 stops at ``candidate_cap`` (``multistart.CANDIDATE_CAP``). ``SlewSolution.n_candidates`` says
 how many it tried. A multi-start is no proof of global optimality: on random problems the
@@ -126,7 +127,8 @@ def solve(problem, method="auto", guess=None, warm_start="default", **options) -
     penalty route of an indirect solve with active cones: default 32, at least 2),
     ``max_candidates`` (default 16 per-axis, 8 p-norm), ``min_candidates`` (tried before
     stopping early, default 8 per-axis, 3 p-norm), ``enough`` (converged candidates before
-    stopping early, default 2), ``candidate_cap`` (per-axis: after the first verified extremal reached along a
+    stopping early, default 2: the best final time reached by two of them; 1: the first verified
+    extremal not slower than the eigenaxis slew, once ``min_candidates`` were tried), ``candidate_cap`` (per-axis: after the first verified extremal reached along a
     built-in candidate's smoothing path, each later candidate's attempt stops after
     ``max(multiple × the first attempt's propagations, floor)`` propagations;
     default ``(2, 200)``, ``None`` for no cap), ``seed`` (for the perturbed candidates, default 0),

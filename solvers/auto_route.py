@@ -302,7 +302,9 @@ def refine_collocation(target, col, options, max_candidates, budget):
     per_axis = math.isinf(target.torque_norm)
     g = Guess(col.costate0, col.tf, col.switch_times if per_axis else None, col.u_first if per_axis else None,
               source="collocation")
-    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=1, time_budget=budget,
+    # every one of the ``max_candidates`` is tried unless two agree (``enough=2``: collocation's
+    # guess, then the classical ones; ``enough=1`` would stop at the first verified extremal)
+    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=2, time_budget=budget,
                 model_guess=True)
     ref = multistart.solve_indirect(target, "indirect", g, **opts)
     accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * cone_routes.rel_tol(col)))

@@ -217,6 +217,8 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
     max_candidates = int(options.get("max_candidates", 16 if per_axis else 8))
     min_candidates = int(options.get("min_candidates", 8 if per_axis else 3))
     enough = int(options.get("enough", 2))
+    if enough < 1:
+        raise ValueError(f"enough: must be a positive integer, got {enough}")
     seed = options.get("seed", 0)
     budget = float(options.get("time_budget", 20.0))
     tols = options.get("tols")
@@ -346,7 +348,9 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         # was not measured and does not set it)
         if first_nfev is None and path_cost > 0 and src.startswith("eigenaxis"):
             first_nfev = path_cost
-        if first_verified and not (a.T > near_baseline(a.T) * (1 + 1e-7)):
+        if (first_verified or (enough <= 1 and tried >= min_candidates)) and not (a.T > near_baseline(a.T) * (1 + 1e-7)):
+            # (``enough=1``: the first verified extremal not slower than the eigenaxis slew, once
+            # ``min_candidates`` were tried; it had waited for a second one, as ``enough=2``)
             break
         if len(found) >= enough and tried >= min_candidates:
             Ts = sorted(f[0] for f in found)
