@@ -257,7 +257,10 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction)) if pointing
            else float(qerror_angle(qT, prob.qf)))
     rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
-    w_scale = max(1.0, leg.peak_rate)
+    # the rate's scale: the peak rate, at least 1 / τ (τ = sqrt(J_max / u_max)): unit-consistent, as
+    # verify's 1e-8 / τ (a floor of 1 rad per problem time unit had let a slow body's rate miss by
+    # 1 % of its scale at τ = 1e6 s: an outside check of physical units, session 43)
+    w_scale = max(1.0 / prob.time_unit, leg.peak_rate)
     bound = leg.bound_ratio()
     checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
               "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),

@@ -344,7 +344,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction))
            if target.qf is None else float(qerror_angle(qT, target.qf)))
     rate_err = float(np.linalg.norm(x[4:7] - target.omegaf))
-    w_scale = max(1.0, max(leg.peak_rate for leg in legs))
+    w_scale = max(1.0 / target.time_unit, max(leg.peak_rate for leg in legs))     # (as eigenaxis_answer)
     bound = max(leg.bound_ratio() for leg in legs)
     checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
               "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),

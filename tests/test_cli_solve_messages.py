@@ -58,3 +58,17 @@ def test_a_write_error_on_the_output_names_o_and_the_path(tmp_path, capsys, batc
     line = _one_line(capsys.readouterr().err.replace("\r", "\n"))
     assert code == 2
     assert "-o: cannot write to '/dev/full': No space left on device" in line
+
+
+def test_a_sampled_answer_prints_no_switches_or_first_arc_signs(tmp_path, capsys):
+    """An eigenaxis answer's control is its samples: no "0 in all" switch list and no meaningless
+    u_first [+1, +1, +1] (an outside check, session 43); a bang-bang answer keeps both lines."""
+    prob = tmp_path / "p.json"
+    prob.write_text(json.dumps({"inertia": [1, 0.8, 0.6], "qf": [0.9, 0.3, 0.3, 0.1]}))
+    assert main(["solve", str(prob), "--method", "eigenaxis", "--repeat", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "switches      none listed: the control is the record's samples (linear-samples)" in out
+    assert "u_first" not in out
+    assert main(["solve", str(prob), "--method", "indirect", "--warm-start", "none", "--repeat", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "switches      5 in all" in out and "u_first       [" in out

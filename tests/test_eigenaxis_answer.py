@@ -265,3 +265,25 @@ def test_a_record_that_misses_gets_more_samples():
     assert sol.success and chk["passed"] and sol.t.size > 2 * N_DENSE
     att, rate = _fly_record(json.loads(json.dumps(sol.to_dict())), p)
     assert max(att, rate * sol.tf) <= RECORD_TOL
+
+
+@pytest.mark.parametrize("method", ["eigenaxis", "waypoint"])
+def test_the_rate_tolerance_scales_with_the_time_unit(method):
+    """The same slew in units 1e6 times slower gets a rate tolerance 1e6 times smaller (it had a
+    floor of 1e-8 rad per time unit: 1 % of a slow body's rate scale; outside check, session 43)."""
+    from slew_env.core import quat_from_euler321_deg
+    from solvers import waypoint_slew
+    tols = []
+    for k, m in [(1.0, 1.0), (1e6, 1e-6)]:
+        if method == "eigenaxis":
+            P = SlewProblem(inertia=[k, 0.81 * k, 0.42 * k], torque_max=m, qf=quat_from_euler321_deg(40, -25, 70))
+            sol = solvers.solve(P, method="eigenaxis")
+        else:       # a cone across the direct path: the slew through a waypoint round it
+            P = SlewProblem.from_dict(dict(inertia=[k, .75 * k, .55 * k], torque_max=m, sensor_target=[-0.5066, 0.8612, 0.0],
+                                           cones=[{"axis": [0.5066, 0.8612, 0.0], "half_angle_deg": 25.0}]))
+            sol = waypoint_slew.waypoint_answer(P)
+        assert sol.success, sol.message
+        c = sol.verification["boundary_rate_error"]
+        tols.append(c["tol"] * P.time_unit)
+    assert P.time_unit == pytest.approx(1e6)
+    assert tols[1] == pytest.approx(tols[0], rel=1e-6) and 1e-8 <= tols[0] < 1e-7
