@@ -306,3 +306,25 @@ def test_the_fallback_round_does_not_repeat_a_sequence_already_tried(monkeypatch
     out = sto.answer_from_collocation(p, col, AttitudeBVP(p), optimise, 5.0, None, 10, __import__("time").perf_counter())
     assert out == (None, None)
     assert len(tried) == len(set(tried)) == len(sto.PULSE_ROUNDS)
+
+
+def test_switches_at_the_ends_are_dropped_and_a_first_one_flips_its_axis():
+    from solvers.switch_time_opt import _without_end_switches
+    sw, signs = _without_end_switches([np.array([1e-19, 0.4]), np.array([0.5, 2.0 - 1e-15]), np.array([0.0, 3e-13, 1.0])],
+                                      np.array([1.0, -1.0, 1.0]), 2.0)
+    assert [list(s) for s in sw] == [[0.4], [0.5], [1.0]]
+    assert list(signs) == [-1.0, -1.0, 1.0]       # z: two switches at the start, flipped twice
+
+
+def test_a_zero_length_first_arc_does_not_keep_the_exact_extremal_away():
+    """The same slew in units where collocation's sequence came out with a switch at 1.1e-19 tf on
+    one axis: the exact solver, given that switch, had failed ("line search failed"), and the answer
+    was a switch-time slew; in kg m² and N m (tau = 300.7 s) it was the exact extremal (an outside
+    check of units, session 43)."""
+    P = SlewProblem(inertia=[0.01, 0.009808055744539709, 0.00892799124180289], torque_max=1.0,
+                    qf=[0.739740556742725, 0.30169689433591673, 0.3621766905574723, -0.48019885201327045],
+                    omega0=[-1.1096731029898133, -2.092965270570267, -1.1862955502361963])
+    sol = solve(P)
+    assert sol.success and sol.exact and sol.method == "indirect", sol.route
+    assert sol.tf / P.time_unit == pytest.approx(1.939848151231, rel=1e-10)
+    assert sorted(len(s) for s in sol.switch_times) == [1, 2, 2]
