@@ -346,22 +346,26 @@ def full_attitude_table(train_data, family):
     as it is (the dataset files it was built from are large and not shipped). ``None`` otherwise.
     A table given with other files is refused: it cannot be merged with them."""
     from .table_data import is_table
-    tables = [p for p in train_data or [] if is_table(p)]
-    if family != "full-attitude" or not tables:
+    if family != "full-attitude":
         return None
-    if len(train_data) > 1:
-        raise ValueError(f"--train-data: {tables[0]}: a full-attitude solution table is the lookup itself and "
-                         f"cannot be merged with other files; give the table alone, or the dataset files")
     from solvers.warmstart import load_model
     from solvers.warmstart.nearest import NearestNeighbourModel
-    try:
-        table = load_model(tables[0])
-    except (OSError, ValueError) as e:
-        raise ValueError(f"--train-data: {tables[0]}: {e}") from None
-    if not isinstance(table, NearestNeighbourModel):
-        raise ValueError(f"--train-data: {tables[0]}: not a full-attitude solution table "
-                         f"({type(table).__name__}); give the full-attitude dataset files or such a table")
-    return os.fspath(tables[0])
+    found = None
+    for path in train_data or []:
+        if not is_table(path):
+            continue
+        try:
+            table = load_model(path)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"--train-data: {path}: {e}") from None
+        if isinstance(table, NearestNeighbourModel):
+            found = path
+            break
+        # (another kind of table: check_train_data names its family)
+    if found is not None and len(train_data) > 1:
+        raise ValueError(f"--train-data: {found}: a full-attitude solution table is the lookup itself and "
+                         f"cannot be merged with other files; give the table alone, or the dataset files")
+    return None if found is None else os.fspath(found)
 
 
 def check_train_data(train_data, family) -> None:
