@@ -36,19 +36,6 @@ from .verify import DENSE_STEPS
 # slew, whose path then crawled past its 60 steps
 SMOOTHING_STALL = (10, 0.9, 1e-5)
 
-# the smoothing path's points are integrated at this relative tolerance and solved to this
-# residual (``continue_path``'s ``path_rtol`` and ``tol``; 1e-9 and 1e-8 before session 43): the
-# points only lead to the bang-bang structure, whose switch-time Newton runs at the problem's own
-# tolerance (``on_point``). Each problem solved both ways, alternating (runs/s43/path_tol.py,
-# path_tol_pointing.py; helpers loading the machine): the same verified answers, to 1e-9, on
-# bench_solver's seeds 2 and 3 (60 problems each, the default multi-start: 48 and 48; median time
-# 0.83 and 0.98 of before), the first candidate alone on seed 1 (43 of 60; 0.81) and 40 pointing
-# slews (29; 0.99). A propagation with sensitivities takes half the time, but the line search's
-# trial flows and the switch-time solves at the answer's tolerance are most of a path's cost.
-# 1e-6 and 1e-5 gave the same first-candidate answers and one more, no faster
-SMOOTHING_PATH_RTOL = 1e-7
-SMOOTHING_PATH_TOL = 1e-6
-
 
 @dataclass
 class Attempt:
@@ -177,8 +164,7 @@ def per_axis_from_guess(bvp, z, T, structure=None, *, eps_starts=(0.3, 1.0), eps
         if over_cap(0):         # the guess's own switch-time solve or a failed start used it up
             break
         path = continue_path(bvp, z, T, eps0 * scale, eps_min * scale, set_param=set_tanh, on_point=try_point,
-                             stall=SMOOTHING_STALL, deadline=deadline, path_rtol=SMOOTHING_PATH_RTOL,
-                             tol=SMOOTHING_PATH_TOL,
+                             stall=SMOOTHING_STALL, deadline=deadline,
                              exhausted=over_cap if max_nfev < math.inf else None)
         nit += path.nit
         nfev += path.nfev
