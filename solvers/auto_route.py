@@ -294,6 +294,15 @@ def pnorm_indirect_first(prob) -> bool:
             and prob.is_rest_to_rest and float(J.min() / J.max()) >= PNORM_INDIRECT_MIN_INERTIA_RATIO)
 
 
+# how many verified extremals the refinement of a collocation answer waits for (its candidates:
+# collocation's guess, then the eigenaxis guess): 1 for a full-attitude target stops at the first
+# (collocation's own, as a rule). Each problem both ways, alternating (runs/s43/refine_ab.py,
+# auto without a model): on bench_solver's seeds 1-3 (180 problems) the same answers, median time
+# 256 -> 186, 305 -> 200 and 276 -> 212 ms; on 40 pointing slews one answer 0.17 % slower (the
+# eigenaxis candidate's extremal was faster), so a pointing target still tries both
+REFINE_ENOUGH = {"full": 1, "pointing": 2}
+
+
 def refine_collocation(target, col, options, max_candidates, budget):
     """The exact extremal of ``target`` from a collocation answer's costates and switching
     structure: ``(solution, accepted)``. Accepted only if verified and not slower than the
@@ -302,9 +311,8 @@ def refine_collocation(target, col, options, max_candidates, budget):
     per_axis = math.isinf(target.torque_norm)
     g = Guess(col.costate0, col.tf, col.switch_times if per_axis else None, col.u_first if per_axis else None,
               source="collocation")
-    # every one of the ``max_candidates`` is tried unless two agree (``enough=2``: collocation's
-    # guess, then the classical ones; ``enough=1`` would stop at the first verified extremal)
-    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=2, time_budget=budget,
+    enough = REFINE_ENOUGH["pointing" if target.sensor_target is not None else "full"]
+    opts = dict(options, max_candidates=max_candidates, min_candidates=1, enough=enough, time_budget=budget,
                 model_guess=True)
     ref = multistart.solve_indirect(target, "indirect", g, **opts)
     accepted = bool(ref.success and ref.tf <= col.tf * (1.0 + 2.0 * cone_routes.rel_tol(col)))
