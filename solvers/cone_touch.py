@@ -731,7 +731,7 @@ def _verify(tp, x, problem, source, reference, tols, pieces=None):
     rep = max(bvp.attitude_error(x_rep[-1, 0:4]), float(np.linalg.norm(x_rep[-1, 4:7] * tau - bvp.wf)))
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-    checks.update(rate_limit_check(bvp, tr.y, tols))
+    checks.update(rate_limit_check(bvp, tr.y, tols, tr.t, [tr.switch_t[tr.switch_axis == i] for i in range(3)], tr.signs0))
     if reference is not None:
         ref_tf, ref_rel, name = reference
         slower = (T * tau - ref_tf) / ref_tf

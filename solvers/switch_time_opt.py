@@ -574,7 +574,7 @@ def _answer(problem, bvp, r, tols, what, route_tail, comparison, tf_tol_of, fall
     t_nd, x = replay_path(bvp.J, bvp.umax, bvp.q0, bvp.w0, sw_nd, signs0, r.T)
     rep = end_error(bvp, x[-1])
     checks["replay"] = make_check(rep, tols["replay"], rep <= tols["replay"])
-    checks.update(rate_limit_check(bvp, x, tols))
+    checks.update(rate_limit_check(bvp, x, tols, t_nd, sw_nd, signs0))
     if problem.cones:
         # certified at every instant on an RK4 replay of the switch times (finer where needed)
         cert = certified_replay(problem, [s * bvp.tau for s in sw_nd], signs0, r.T * bvp.tau)[2]

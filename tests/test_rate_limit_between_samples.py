@@ -1,0 +1,51 @@
+"""The rate limit holds between the dense samples too (an outside adversarial check, session 43):
+with large start rates a rate can peak inside an arc, where Euler's equations turn it round, and an
+exact extremal whose samples at t = 0.0187 and 0.0370 passed (ratio 0.9999999999) peaked at
+t = 0.0276, 0.214 % over the limit (scipy's DOP853 and Radau agree)."""
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from solvers import Guess
+
+# runs/s43/adversarial/repro_F0_rate_limit_between_samples_seed31.json and the answer auto gave it
+F0 = SlewProblem(inertia=[1.0, 0.29594224984475603, 0.46986171044240455],
+                 qf=[0.8747677051964231, 0.28300535656359493, 0.37338241522522214, -0.12359207944798087],
+                 omega0=[-4.344881024792871, -5.170868704393943, -0.5625622958380763],
+                 rate_max=[1000.0, 5.266780228583561, 1000.0])
+F0_ANSWER = Guess(np.array([0.0, -0.09003679196318076, -0.3209821073258194, 0.2987331620660741,
+                            -0.936255794942656, 0.003184677525131953, -0.040626512503685853]), 3.691806598218831,
+                  [np.array([]), np.array([0.08071408290724302, 0.5410185308331225, 1.1591612772372604,
+                                           1.9927950840896744, 2.306953260208203, 3.5633962752044623]),
+                   np.array([0.05748452260097784, 0.49295866906142877, 0.9748201935920937, 1.620786127256433])],
+                  np.array([1.0, -1.0, 1.0]), source="the answer that broke the limit")
+
+
+def test_an_extremal_over_the_limit_between_its_samples_fails_its_check():
+    s = solvers.solve(F0, method="indirect", guess=F0_ANSWER, warm_start=None, max_candidates=1, min_candidates=1)
+    assert not s.success and s.status == 2
+    check = s.verification["rate_limit"]
+    assert not check["passed"] and check["value"] == pytest.approx(1.0021419668, rel=1e-7)   # DOP853's peak
+    assert "rate_limit" in s.message
+
+
+def test_auto_answers_it_within_the_limit():
+    from scipy.integrate import solve_ivp
+    s = solvers.solve(F0)
+    assert s.success, s.message
+    J = np.asarray(F0.inertia)
+    r = solve_ivp(lambda t, w: (s.control(t) - np.cross(w, J * w)) / J, (0.0, s.tf), np.asarray(F0.omega0, float),
+                  method="DOP853", rtol=1e-10, atol=1e-12, t_eval=np.linspace(0.0, s.tf, 20001), max_step=s.tf / 2000)
+    assert F0.rate_limit_ratio(r.y.T) <= 1.0 + 1e-6
+
+
+def test_far_from_the_limit_the_check_is_the_samples_maximum(monkeypatch):
+    from solvers import verify
+    calls = []
+    real = verify._bang_rates_between
+    monkeypatch.setattr(verify, "_bang_rates_between", lambda *a: calls.append(real(*a)) or calls[-1])
+    p = SlewProblem([1, 1, 1], qf=[0, 0, 0, 1], rate_max=10.0)        # R1 peaks at about 1.6
+    s = solvers.solve(p, method="indirect", warm_start=None, max_candidates=1, min_candidates=1)
+    assert s.success and s.verification["rate_limit"]["value"] < 0.2
+    assert calls and max(calls) == pytest.approx(s.verification["rate_limit"]["value"])
