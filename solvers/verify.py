@@ -175,52 +175,42 @@ def _row_ratios(prob, w):
     return r
 
 
-def _bang_rates_between(bvp, t, W, switch_times, signs0):
-    """The largest rate-limit ratio between the samples ``(t, W)`` (nondimensional times and
-    rates) of a bang-bang path: a rate can peak inside an arc, where Euler's equations turn it
-    round (large rates at the ends), between two samples that both pass. Every interval whose
-    samples, plus half its length times 1.5 the largest rate derivative of the path, reach the
-    limit is integrated again (Euler's equations alone, RK4, ``RATE_REFINE_STEPS`` steps, the
-    control of the interval's middle: the samples include the switch instants), and the peak
+def _rates_between(bvp, t, Y, slopes, f_of):
+    """The largest rate-limit ratio between the samples ``(t, Y)`` (nondimensional times and
+    states whose columns 4:7 are the rates, or the rates alone): a rate can peak inside an arc,
+    where Euler's equations turn it round (large rates at the ends), between two samples that both
+    pass. Every interval whose samples, plus half its length times 1.5 the path's largest rate
+    derivative (``slopes``, per sample), reach the limit is integrated again (RK4,
+    ``RATE_REFINE_STEPS`` steps of ``f_of(k)``, the derivative on interval ``k``), and the peak
     located by a parabola through the largest step and its neighbours."""
-    from .solution import bang_bang_control
-    prob, J, tau = bvp.problem, bvp.J, bvp.tau
-    u_of = bang_bang_control(switch_times, signs0, bvp.umax)
+    prob, tau = bvp.problem, bvp.tau
     t = np.asarray(t, float)
-    W = np.asarray(W, float)
-    ratios = _row_ratios(prob, W / tau)
+    Y = np.asarray(Y, float)
+    cols = slice(4, 7) if Y.shape[1] > 3 else slice(0, 3)
+    ratios = _row_ratios(prob, Y[:, cols] / tau)
     limits = []
     if prob.rate_max is not None:
         limits.append(float(np.min(prob.rate_max)))
     if prob.rate_norm_max is not None:
         limits.append(float(prob.rate_norm_max))
     L = min(limits) * tau                 # the smallest limit, nondimensional
-
-    def wdot(w, u):
-        return (u - np.cross(w, J * w)) / J
-
     h = np.diff(t)
-    mids = 0.5 * (t[:-1] + t[1:])
-    U = u_of(mids)
-    slope = max(float(np.max(np.linalg.norm(wdot(W[:-1], U), axis=1))),
-                float(np.max(np.linalg.norm(wdot(W[1:], U), axis=1))))
-    rise = 1.5 * slope * 0.5 * h / L
+    rise = 1.5 * float(np.max(slopes)) * 0.5 * h / L
     worst = float(np.max(ratios))
     for k in np.nonzero(np.maximum(ratios[:-1], ratios[1:]) + rise > 1.0 - 1e-3)[0]:
         n = RATE_REFINE_STEPS
         dt = h[k] / n
-        u = U[k]
-        w = W[k].copy()
-        ws = [w.copy()]
+        f = f_of(k)
+        y = Y[k].copy()
+        ys = [y.copy()]
         for _ in range(n):
-            k1 = wdot(w, u)
-            k2 = wdot(w + 0.5 * dt * k1, u)
-            k3 = wdot(w + 0.5 * dt * k2, u)
-            k4 = wdot(w + dt * k3, u)
-            w = w + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            ws.append(w.copy())
-        ws = np.asarray(ws)
-        r = _row_ratios(prob, ws / tau)
+            k1 = f(y)
+            k2 = f(y + 0.5 * dt * k1)
+            k3 = f(y + 0.5 * dt * k2)
+            k4 = f(y + dt * k3)
+            y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            ys.append(y.copy())
+        r = _row_ratios(prob, np.asarray(ys)[:, cols] / tau)
         j = int(np.argmax(r))
         peak = float(r[j])
         if 0 < j < n:
@@ -232,20 +222,48 @@ def _bang_rates_between(bvp, t, W, switch_times, signs0):
     return worst
 
 
+def _bang_rates_between(bvp, t, W, switch_times, signs0):
+    """``_rates_between`` for a bang-bang path: Euler's equations alone, with the control of
+    each interval's middle (the samples include the switch instants)."""
+    from .solution import bang_bang_control
+    J = bvp.J
+    t = np.asarray(t, float)
+    W = np.asarray(W, float)
+    U = bang_bang_control(switch_times, signs0, bvp.umax)(0.5 * (t[:-1] + t[1:]))
+
+    def wdot(w, u):
+        return (u - np.cross(w, J * w)) / J
+    slopes = np.concatenate([np.linalg.norm(wdot(W[:-1], U), axis=1), np.linalg.norm(wdot(W[1:], U), axis=1)])
+    return _rates_between(bvp, t, W, slopes, lambda k: (lambda w, u=U[k]: wdot(w, u)))
+
+
+def _costate_rates_between(bvp, t, Y):
+    """``_rates_between`` for a path whose control follows its costates (the p-norm law): the
+    state and costates integrated together."""
+    J, umax, mode, p, eps = bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps
+    ones = np.ones(3)
+
+    def f(y):
+        return af.ext_rhs(y, af.control(y, J, umax, mode, p, eps, ones)[0], J)
+    slopes = np.array([np.linalg.norm(f(y)[4:7]) for y in np.asarray(Y, float)])
+    return _rates_between(bvp, t, Y, slopes, lambda k: f)
+
+
 def rate_limit_check(bvp, Y, tols, t=None, switch_times=None, signs0=None):
     """``rate_limit`` (``max |ω_i| / rate_max_i`` and ``max ‖ω‖ / rate_norm_max``:
     ``SlewProblem.rate_limit_ratio``) over the nondimensional states ``Y`` when the problem has
-    a rate limit, else nothing. With the samples' times ``t`` and a bang-bang path's
-    ``switch_times`` and first-arc ``signs0`` (nondimensional), also between the samples
-    (``_bang_rates_between``: an outside check found exact answers 0.21 % over the limit
+    a rate limit, else nothing. With the samples' times ``t``, also between the samples: from a
+    bang-bang path's ``switch_times`` and first-arc ``signs0`` (nondimensional), or without them
+    from the costates in ``Y`` (the p-norm law: ``_rates_between``; an outside check found exact answers 0.21 % over the limit
     between two samples that passed, session 43)."""
     prob = bvp.problem
     if not prob.has_rate_limit:
         return {}
     W = np.asarray(Y)[:, 4:7]
     worst = prob.rate_limit_ratio(W / bvp.tau)
-    if t is not None and switch_times is not None and len(t) >= 2 and math.isfinite(worst):
-        worst = max(worst, _bang_rates_between(bvp, t, W, switch_times, signs0))
+    if t is not None and len(t) >= 2 and math.isfinite(worst):
+        worst = max(worst, _bang_rates_between(bvp, t, W, switch_times, signs0) if switch_times is not None
+                    else _costate_rates_between(bvp, t, Y))
     return {"rate_limit": make_check(worst, tols["rate_limit"], worst <= tols["rate_limit"])}
 
 
@@ -329,6 +347,6 @@ def verify(bvp, z, T, structure=None, tols=None, n_dense=DENSE_STEPS, trajectory
     if bvp.mode == af.MODE_BANG:
         checks.update(rate_limit_check(bvp, tr.y, tols, tr.t, sw, tr.signs0))
     else:
-        checks.update(rate_limit_check(bvp, tr.y, tols))
+        checks.update(rate_limit_check(bvp, tr.y, tols, tr.t))
     text = failure_text(checks)
     return not text, checks, text, tr

@@ -49,3 +49,17 @@ def test_far_from_the_limit_the_check_is_the_samples_maximum(monkeypatch):
     s = solvers.solve(p, method="indirect", warm_start=None, max_candidates=1, min_candidates=1)
     assert s.success and s.verification["rate_limit"]["value"] < 0.2
     assert calls and max(calls) == pytest.approx(s.verification["rate_limit"]["value"])
+
+
+def test_a_pnorm_extremal_is_checked_between_its_samples_too():
+    """A 2-norm extremal whose largest sampled rate is set as the limit (plus 1e-5): its rate peaks
+    2.5e-5 above that between two samples, so the answer fails the check (the state and costates
+    integrated again, the p-norm law)."""
+    qf = np.array([0.87, 0.28, 0.37, -0.12])
+    free = SlewProblem([1, 0.6, 0.45], torque_norm=2, qf=qf / np.linalg.norm(qf), omega0=[-3.0, -3.5, -0.5])
+    s = solvers.solve(free, method="indirect", warm_start=None)
+    assert s.success
+    peak = float(np.max(np.abs(s.omega[:, 1])))
+    limited = free.replace(rate_max=[100.0, peak * (1 + 1e-5), 100.0])
+    s2 = solvers.solve(limited, method="indirect", warm_start=None)
+    assert not s2.success and s2.verification["rate_limit"]["value"] == pytest.approx(1.000025, abs=5e-6)
