@@ -175,14 +175,15 @@ def _row_ratios(prob, w):
     return r
 
 
-def _rates_between(bvp, t, Y, slopes, f_of):
+def _rates_between(bvp, t, Y, slopes, f):
     """The largest rate-limit ratio between the samples ``(t, Y)`` (nondimensional times and
     states whose columns 4:7 are the rates, or the rates alone): a rate can peak inside an arc,
     where Euler's equations turn it round (large rates at the ends), between two samples that both
     pass. Every interval whose samples, plus half its length times 1.5 the path's largest rate
-    derivative (``slopes``, per sample), reach the limit is integrated again (RK4,
-    ``RATE_REFINE_STEPS`` steps of ``f_of(k)``, the derivative on interval ``k``), and the peak
-    located by a parabola through the largest step and its neighbours."""
+    derivative (``slopes``, per sample), reach the limit is integrated again: RK4 in
+    ``RATE_REFINE_STEPS`` steps of ``f(ks, Ys)`` (the derivatives of the states ``Ys`` on the
+    intervals ``ks``, all flagged intervals at once), the peak located by a parabola through the
+    largest step and its neighbours."""
     prob, tau = bvp.problem, bvp.tau
     t = np.asarray(t, float)
     Y = np.asarray(Y, float)
@@ -197,29 +198,31 @@ def _rates_between(bvp, t, Y, slopes, f_of):
     h = np.diff(t)
     rise = 1.5 * float(np.max(slopes)) * 0.5 * h / L
     worst = float(np.max(ratios))
-    for k in np.nonzero(np.maximum(ratios[:-1], ratios[1:]) + rise > 1.0 - 1e-3)[0]:
-        n = RATE_REFINE_STEPS
-        dt = h[k] / n
-        f = f_of(k)
-        y = Y[k].copy()
-        ys = [y.copy()]
-        for _ in range(n):
-            k1 = f(y)
-            k2 = f(y + 0.5 * dt * k1)
-            k3 = f(y + 0.5 * dt * k2)
-            k4 = f(y + dt * k3)
-            y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            ys.append(y.copy())
-        r = _row_ratios(prob, np.asarray(ys)[:, cols] / tau)
-        j = int(np.argmax(r))
-        peak = float(r[j])
-        if 0 < j < n:
-            a, b, c = r[j - 1], r[j], r[j + 1]
-            den = a - 2.0 * b + c
-            if den < 0.0:       # a parabola's top between the neighbours
-                peak = max(peak, float(b - 0.125 * (a - c) ** 2 / den))
-        worst = max(worst, peak)
-    return worst
+    ks = np.nonzero(np.maximum(ratios[:-1], ratios[1:]) + rise > 1.0 - 1e-3)[0]
+    if ks.size == 0:
+        return worst
+    n = RATE_REFINE_STEPS
+    dt = (h[ks] / n)[:, None]
+    y = Y[ks].copy()
+    R = np.empty((n + 1, ks.size))
+    R[0] = _row_ratios(prob, y[:, cols] / tau)
+    for s in range(n):
+        k1 = f(ks, y)
+        k2 = f(ks, y + 0.5 * dt * k1)
+        k3 = f(ks, y + 0.5 * dt * k2)
+        k4 = f(ks, y + dt * k3)
+        y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        R[s + 1] = _row_ratios(prob, y[:, cols] / tau)
+    j = np.argmax(R, axis=0)
+    peak = R[j, np.arange(ks.size)]
+    inner = (j > 0) & (j < n)
+    if np.any(inner):
+        cols_i = np.nonzero(inner)[0]
+        a, b, c = R[j[cols_i] - 1, cols_i], R[j[cols_i], cols_i], R[j[cols_i] + 1, cols_i]
+        den = a - 2.0 * b + c
+        top = np.where(den < 0.0, b - 0.125 * (a - c) ** 2 / np.where(den < 0.0, den, -1.0), b)
+        peak[cols_i] = np.maximum(peak[cols_i], top)      # a parabola's top between the neighbours
+    return max(worst, float(np.max(peak)))
 
 
 def _bang_rates_between(bvp, t, W, switch_times, signs0):
@@ -234,7 +237,7 @@ def _bang_rates_between(bvp, t, W, switch_times, signs0):
     def wdot(w, u):
         return (u - np.cross(w, J * w)) / J
     slopes = np.concatenate([np.linalg.norm(wdot(W[:-1], U), axis=1), np.linalg.norm(wdot(W[1:], U), axis=1)])
-    return _rates_between(bvp, t, W, slopes, lambda k: (lambda w, u=U[k]: wdot(w, u)))
+    return _rates_between(bvp, t, W, slopes, lambda ks, w: wdot(w, U[ks]))
 
 
 def _costate_rates_between(bvp, t, Y):
@@ -243,10 +246,11 @@ def _costate_rates_between(bvp, t, Y):
     J, umax, mode, p, eps = bvp.J, bvp.umax, bvp.mode, bvp.p, bvp.eps
     ones = np.ones(3)
 
-    def f(y):
+    def f1(y):
         return af.ext_rhs(y, af.control(y, J, umax, mode, p, eps, ones)[0], J)
-    slopes = np.array([np.linalg.norm(f(y)[4:7]) for y in np.asarray(Y, float)])
-    return _rates_between(bvp, t, Y, slopes, lambda k: f)
+    Y = np.asarray(Y, float)
+    slopes = np.array([np.linalg.norm(f1(y)[4:7]) for y in Y])
+    return _rates_between(bvp, t, Y, slopes, lambda ks, ys: np.array([f1(y) for y in ys]))
 
 
 def rate_limit_check(bvp, Y, tols, t=None, switch_times=None, signs0=None):
