@@ -304,7 +304,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     """The waypoint slew of ``plan`` (default: ``plan_waypoints(problem)``) as a verified
     ``SlewSolution`` (module docstring); ``n_grid``: angle steps of each leg's profile (default:
     ``eigenaxis_answer``'s). Where no plan exists, a failed solution (status 5) that says so."""
-    from .eigenaxis_answer import BOUNDARY_TOL, N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg, recorded
+    from .eigenaxis_answer import BOUNDARY_TOL, N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg, record_checks, recorded
     from .eigenaxis import _phase_plane
     t_start = time.perf_counter()
     target = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
@@ -355,7 +355,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     from .clearance import CLEARANCE_TOL, certified_min_margin
     cert = certified_min_margin(target, td, qd, wd)[1]
     checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-    checks["record_replay"] = record
+    checks.update(record_checks(record))
     text = failure_text(checks)
     tf = float(offsets[-1])
     ends = np.array(offsets)
