@@ -72,3 +72,14 @@ def test_a_sampled_answer_prints_no_switches_or_first_arc_signs(tmp_path, capsys
     assert main(["solve", str(prob), "--method", "indirect", "--warm-start", "none", "--repeat", "0"]) == 0
     out = capsys.readouterr().out
     assert "switches      5 in all" in out and "u_first       [" in out
+
+
+def test_a_collocation_answer_keeps_its_approximate_switch_list(tmp_path, capsys):
+    """Its record lists the sampled torque's sign changes and u_first: the printout says what they
+    are rather than "none listed" (a review of session 43)."""
+    prob = tmp_path / "p.json"
+    prob.write_text(json.dumps({"inertia": [1, 0.8, 0.6], "qf": [0.9, 0.3, 0.3, 0.1]}))
+    assert main(["solve", str(prob), "--method", "collocation", "--repeat", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "switches      5 in all" in out and "the sampled torque's sign changes" in out
+    assert "u_first       [" in out

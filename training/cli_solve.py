@@ -272,18 +272,20 @@ def summary_lines(sol, prob, warm=None):
     tol_txt = f" ± {tol:.1g}" if tol == tol else ""
     L.append(f"tf            {_fmt_tf(sol.tf)}{tol_txt}  ({tf_note})")
     law = getattr(sol, "control_law", "bang-bang")
-    if law in ("quadratic-samples", "linear-samples") and sol.success:
-        # (an eigenaxis, collocation or penalised answer: no switch list or first-arc signs define
-        # its control; "0 in all" and u_first [+1, +1, +1] had been printed for it)
+    sampled = law in ("quadratic-samples", "linear-samples") and sol.success
+    if sampled and not any(len(s) for s in sol.switch_times):
+        # (an eigenaxis or penalised answer: no switch list or first-arc signs define its control;
+        # "0 in all" and u_first [+1, +1, +1] had been printed for it)
         L.append(f"switches      none listed: the control is the record's samples ({law})")
     elif math.isinf(prob.torque_norm):
         n = sum(len(s) for s in sol.switch_times)
         per_axis = ", ".join(f"{ax} {len(s)}" + (f" [{', '.join(f'{v:.6g}' for v in s)}]" if len(s) else "")
                              for ax, s in zip("xyz", sol.switch_times))
-        L.append(f"switches      {n} in all: {per_axis}")
+        note = f"  (the sampled torque's sign changes; the control is the record's samples, {law})" if sampled else ""
+        L.append(f"switches      {n} in all: {per_axis}{note}")
     else:
         L.append(f"switches      none (p = {prob.torque_norm:g} norm bound: continuous control)")
-    if law == "bang-bang" and math.isinf(prob.torque_norm):
+    if math.isinf(prob.torque_norm) and (law == "bang-bang" or (sampled and any(len(s) for s in sol.switch_times))):
         uf = "[" + ", ".join(f"{v:+g}" for v in sol.u_first) + "]"
         L.append(f"u_first       {uf}  (sign of each axis's first arc)")
     L.append(f"nit / nfev    {sol.nit} / {sol.nfev}")
