@@ -344,7 +344,9 @@ def full_attitude_table(train_data, family):
     """The one ``--train-data`` file when it is a full-attitude solution table (``NAME.nn.npz``,
     such as the shipped ``full-attitude.nn.npz``): it is the nearest-neighbour lookup itself, used
     as it is (the dataset files it was built from are large and not shipped). ``None`` otherwise.
-    A table given with other files is refused: it cannot be merged with them."""
+    A table given with other files is refused: it cannot be merged with them. A full-attitude
+    table names no data files, so the check that the held-out problems are not training problems
+    rests on the model's card (the shipped model's names the same data as its table)."""
     from .table_data import is_table
     if family != "full-attitude":
         return None
