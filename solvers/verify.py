@@ -20,7 +20,8 @@ Checks (each a dict ``{value, tol, passed}`` in ``SlewSolution.verification``):
   ``tf`` divided by each switch's conditioning (``switch_deviation``: a switching function
   that crosses zero slowly fixes its zero less precisely);
 * ``rate_limit`` — ``max |ω_i| / rate_max_i`` and ``max ‖ω‖ / rate_norm_max``, the larger (only
-  when the problem has a rate limit);
+  when the problem has a rate limit), at the dense samples and between them (``_rates_between``:
+  the intervals that could reach the limit integrated again);
 * ``replay`` — an independent re-propagation with a different integrator: for the
   per-axis bound, the returned switch times and first-arc signs alone, integrated by
   the environment's fixed-step RK4 (``slew_env.core.propagate``); for a p-norm bound,
