@@ -330,6 +330,11 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         # the clock started: ``kernel_loading``)
         if tried > 0 and time.perf_counter() > deadline:
             break
+        if (enough <= 1 and tried >= min_candidates
+                and any(not (f[0] > near_baseline(f[0]) * (1 + 1e-7)) for f in found)):
+            # ``enough=1``: a verified extremal not slower than the eigenaxis slew, and
+            # ``min_candidates`` tried (it had waited for a second extremal, as ``enough=2``)
+            break
         tried += 1
         a, path_cost, ok, checks, text, tr = attempt(z, T, st, src)
         if sensor_reversed(checks):
@@ -348,9 +353,7 @@ def solve_indirect(prob, method, guess, first_verified=False, **options) -> Slew
         # was not measured and does not set it)
         if first_nfev is None and path_cost > 0 and src.startswith("eigenaxis"):
             first_nfev = path_cost
-        if (first_verified or (enough <= 1 and tried >= min_candidates)) and not (a.T > near_baseline(a.T) * (1 + 1e-7)):
-            # (``enough=1``: the first verified extremal not slower than the eigenaxis slew, once
-            # ``min_candidates`` were tried; it had waited for a second one, as ``enough=2``)
+        if first_verified and not (a.T > near_baseline(a.T) * (1 + 1e-7)):
             break
         if len(found) >= enough and tried >= min_candidates:
             Ts = sorted(f[0] for f in found)

@@ -35,3 +35,23 @@ def test_enough_one_still_tries_min_candidates():
 def test_enough_below_one_is_refused_by_name(bad):
     with pytest.raises(ValueError, match="enough"):
         solvers.solve(R1, method="indirect", warm_start=None, enough=bad)
+
+
+def test_enough_one_stops_once_min_candidates_were_tried_after_an_earlier_answer(monkeypatch):
+    """The first candidate's extremal counts when the minimum is reached by later candidates that
+    fail (a review: it had waited for a verified extremal at or after the minimum)."""
+    from solvers import multistart
+    calls = []
+    real = multistart.per_axis_from_guess
+
+    def first_real_then_fail(bvp, z, T, st, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            return real(bvp, z, T, st, **kw)
+        return multistart.Attempt(False, z, T, None, 0, 0, "test", "failed on purpose")
+    monkeypatch.setattr(multistart, "per_axis_from_guess", first_real_then_fail)
+    monkeypatch.setattr(multistart, "solve_structure",       # the templates' switch-time Newton
+                        lambda bvp, z, T, st, **kw: multistart.Attempt(False, z, T, None, 0, 0, "test", "failed"))
+    s = solvers.solve(R1, method="indirect", warm_start=None, enough=1, min_candidates=3,
+                      candidate_cap=None)
+    assert s.success and s.n_candidates == 3 and s.tf == pytest.approx(3.500076085, rel=1e-8)
