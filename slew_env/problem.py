@@ -408,20 +408,25 @@ class SlewProblem:
         """A limit on the body rate: per axis (``rate_max``), on its norm (``rate_norm_max``), or both."""
         return self.rate_max is not None or self.rate_norm_max is not None
 
+    def rate_limit_ratios(self, omega) -> np.ndarray:
+        """``rate_limit_ratio`` of each row of ``omega`` (body rates, problem units): the larger of
+        ``max_i |ω_i| / rate_max_i`` and ``‖ω‖ / rate_norm_max``; 0 without a limit, infinite for a
+        row that is not finite."""
+        w = np.asarray(omega, dtype=float).reshape(-1, 3)
+        r = np.zeros(w.shape[0])
+        if self.rate_max is not None:
+            r = np.maximum(r, np.max(np.abs(w) / np.asarray(self.rate_max, float), axis=1))
+        if self.rate_norm_max is not None:
+            r = np.maximum(r, np.linalg.norm(w, axis=1) / self.rate_norm_max)
+        # (np.maximum keeps a NaN, but a limit-free problem would give 0: a NaN rate must not pass)
+        r[~np.all(np.isfinite(w), axis=1)] = math.inf
+        return r
+
     def rate_limit_ratio(self, omega) -> float:
         """The largest ``|ω_i| / rate_max_i`` and ``‖ω‖ / rate_norm_max`` over the rows of ``omega``
         (body rates, problem units): at most 1 where the rate limits hold; 0 without a limit."""
-        w = np.asarray(omega, dtype=float).reshape(-1, 3)
-        worst = 0.0
-        if w.shape[0] == 0:
-            return worst
-        if not np.all(np.isfinite(w)):
-            return math.inf        # (max(0.0, nan) is 0.0: a NaN rate would have passed the check)
-        if self.rate_max is not None:
-            worst = max(worst, float(np.max(np.abs(w) / self.rate_max)))
-        if self.rate_norm_max is not None:
-            worst = max(worst, float(np.max(np.linalg.norm(w, axis=1))) / self.rate_norm_max)
-        return worst
+        r = self.rate_limit_ratios(omega)
+        return float(np.max(r)) if r.size else 0.0
 
     # ------------------------------------------------------------------ packing
     def to_task_array(self, max_cones: Optional[int] = None) -> np.ndarray:

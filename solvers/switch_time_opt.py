@@ -338,7 +338,7 @@ def singular_arc_evidence(problem, col):
         t = np.asarray(col.t, float)
         run = (t >= start) & (t <= start + length)
         w = np.asarray(col.omega, float)[run]
-        at_limit = np.array([problem.rate_limit_ratio(r) >= RATE_LIMIT_ACTIVE for r in w])
+        at_limit = problem.rate_limit_ratios(w) >= RATE_LIMIT_ACTIVE
         if at_limit.size and np.mean(at_limit) >= 0.5:
             what = (f"the rate limit is active (the rate within {1 - RATE_LIMIT_ACTIVE:.0%} of it on "
                     f"{np.mean(at_limit):.0%} of those samples): a rate-limited coast, a state-constrained arc")

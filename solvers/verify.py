@@ -170,16 +170,6 @@ RATE_REFINE_TURN = 0.02
 RATE_REFINE_MAX_STEPS = 2000
 
 
-def _row_ratios(prob, w):
-    """``rate_limit_ratio`` of each row of ``w`` (body rates, problem units)."""
-    r = np.zeros(w.shape[0])
-    if prob.rate_max is not None:
-        r = np.maximum(r, np.max(np.abs(w) / np.asarray(prob.rate_max, float), axis=1))
-    if prob.rate_norm_max is not None:
-        r = np.maximum(r, np.linalg.norm(w, axis=1) / prob.rate_norm_max)
-    return r
-
-
 def _rates_between(bvp, t, Y, slopes, f):
     """The largest rate-limit ratio between the samples ``(t, Y)`` (nondimensional times and
     states whose columns 4:7 are the rates, or the rates alone): a rate can peak inside an arc,
@@ -195,7 +185,7 @@ def _rates_between(bvp, t, Y, slopes, f):
     t = np.asarray(t, float)
     Y = np.asarray(Y, float)
     cols = slice(4, 7) if Y.shape[1] > 3 else slice(0, 3)
-    ratios = _row_ratios(prob, Y[:, cols] / tau)
+    ratios = prob.rate_limit_ratios(Y[:, cols] / tau)
     limits = []
     if prob.rate_max is not None:
         limits.append(float(np.min(prob.rate_max)))
@@ -215,17 +205,18 @@ def _rates_between(bvp, t, Y, slopes, f):
     Ys = np.empty((n + 1, m, Y.shape[1]))
     Ys[0] = Y[ks]
     R = np.empty((n + 1, m))
-    R[0] = _row_ratios(prob, Ys[0][:, cols] / tau)
+    R[0] = prob.rate_limit_ratios(Ys[0][:, cols] / tau)
 
-    def rk4(y, step):
-        k1 = f(ks, y)
-        k2 = f(ks, y + 0.5 * step * k1)
-        k3 = f(ks, y + 0.5 * step * k2)
-        k4 = f(ks, y + step * k3)
+    def rk4(kk, y, step):
+        """One RK4 step of the intervals ``kk`` from their states ``y`` (a step a row)."""
+        k1 = f(kk, y)
+        k2 = f(kk, y + 0.5 * step * k1)
+        k3 = f(kk, y + 0.5 * step * k2)
+        k4 = f(kk, y + step * k3)
         return y + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     for s in range(n):
-        Ys[s + 1] = rk4(Ys[s], dt)
-        R[s + 1] = _row_ratios(prob, Ys[s + 1][:, cols] / tau)
+        Ys[s + 1] = rk4(ks, Ys[s], dt)
+        R[s + 1] = prob.rate_limit_ratios(Ys[s + 1][:, cols] / tau)
     worst = max(worst, float(np.max(R)))
     cols_m = np.arange(m)
     c0 = np.clip(np.argmax(R, axis=0), 1, n - 1)          # the three steps round the largest
@@ -237,15 +228,8 @@ def _rates_between(bvp, t, Y, slopes, f):
         i = np.minimum(np.floor(x).astype(np.int64), n - 1)
         sel = np.nonzero(top)[0]
         # from the step before the vertex to it, each interval by its own fraction of a step
-        frac = ((x - i) * dt[sel, 0])[:, None]
-        y0 = Ys[i, sel]
-        ksel = ks[sel]
-        k1 = f(ksel, y0)
-        k2 = f(ksel, y0 + 0.5 * frac * k1)
-        k3 = f(ksel, y0 + 0.5 * frac * k2)
-        k4 = f(ksel, y0 + frac * k3)
-        yv = y0 + frac / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        worst = max(worst, float(np.max(_row_ratios(prob, yv[:, cols] / tau))))
+        yv = rk4(ks[sel], Ys[i, sel], ((x - i) * dt[sel, 0])[:, None])
+        worst = max(worst, float(np.max(prob.rate_limit_ratios(yv[:, cols] / tau))))
     return worst
 
 

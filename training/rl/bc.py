@@ -71,6 +71,14 @@ def default_solutions_path(family: str, seed: int) -> Path:
     return Path("runs") / "solutions" / f"{family}-seed{int(seed)}.jsonl"
 
 
+def solve_spec(family: str, n: int, seed: int, solve_fn: Optional[str] = None, solve_options=None):
+    """The ``GenerationSpec`` the problems are solved under; its checks raise a ``ValueError``
+    naming a bad solve route or option before anything is written."""
+    from training.generate import DEFAULT_SOLVE_FN, GenerationSpec
+    return GenerationSpec(family=family, seed=int(seed), n=int(n), solve_options=dict(solve_options or {}),
+                          solve_fn=solve_fn or DEFAULT_SOLVE_FN)
+
+
 def solve_problems(family: str, n: int, seed: int, path=None, workers: int = 1, solve_options=None,
                    progress: bool = True, solve_fn: Optional[str] = None) -> list:
     """Records ``0 .. n-1`` of the ``slew generate`` dataset (family, seed), solving what is missing.
@@ -80,11 +88,9 @@ def solve_problems(family: str, n: int, seed: int, path=None, workers: int = 1, 
     the solve route as ``"module:function"`` (default ``solvers.solve``, as ``slew generate``).
     """
     from training.dataset import load
-    from training.generate import DEFAULT_SOLVE_FN, GenerationSpec, generate
+    from training.generate import generate
 
-    # (the spec checks the route and its options first: nothing is made for a bad one)
-    spec = GenerationSpec(family=family, seed=int(seed), n=int(n), solve_options=dict(solve_options or {}),
-                          solve_fn=solve_fn or DEFAULT_SOLVE_FN)
+    spec = solve_spec(family, n, seed, solve_fn, solve_options)    # (checked first: nothing made for a bad one)
     path = Path(path) if path is not None else default_solutions_path(family, seed)
     path.parent.mkdir(parents=True, exist_ok=True)
     have = {r["index"] for r in load(path)} if path.exists() else set()

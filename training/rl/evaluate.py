@@ -109,15 +109,6 @@ def heldout_problems(family: str, n: int, seed: int) -> list:
     return [problem_for(spec, i) for i in range(n)]
 
 
-def checked_solve_spec(family, n, seed, solve_fn=None, solve_options=None):
-    """The ``GenerationSpec`` the held-out problems are solved under; its checks raise a
-    ``ValueError`` naming a bad solve route or option before anything is written."""
-    from training.generate import DEFAULT_SOLVE_FN, GenerationSpec
-
-    return GenerationSpec(family=family, seed=int(seed), n=int(n), solve_options=dict(solve_options or {}),
-                          solve_fn=solve_fn or DEFAULT_SOLVE_FN)
-
-
 def optimal_solutions(family, n, seed, path=None, workers=1, solve_options=None, progress=True,
                       solve_fn=None) -> list:
     """Solver records of held-out problems ``0 .. n-1`` (``training.rl.bc.solve_problems``)."""
@@ -321,7 +312,7 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     """
     from slew_env import SlewProblem
 
-    from .bc import _env_for
+    from .bc import _env_for, solve_spec
 
     if n < 1:
         raise ValueError(f"--n: must be >= 1, got {n}")
@@ -340,7 +331,7 @@ def evaluate(policy, family: Optional[str] = None, n: int = 200, seed: int = DEF
     pdir = Path(policy) if Path(policy).is_dir() else Path(policy).parent
     # the solve route and its options are checked before the report directory is made (a bad
     # --solve-options had left an empty report directory behind)
-    checked_solve_spec(family, n, seed, solve_fn, solve_options)
+    solve_spec(family, n, seed, solve_fn, solve_options)
     out = Path(out) if out is not None else default_report_dir(policy, family, seed)
     out.mkdir(parents=True, exist_ok=True)
 
