@@ -25,6 +25,22 @@ BANG_BANG_BUDGET = 1.0
 PNORM_INDIRECT_BUDGET = 2.0
 PNORM_INDIRECT_MIN_INERTIA_RATIO = 0.3   # the measured range (``pnorm_indirect_first``)
 
+# with keep-out cones, collocation leaves this share of auto's budget (at most
+# ``CONE_FREE_RESERVE_MAX`` s, none under ``CONE_FREE_RESERVE_FROM`` s) to the problem without its
+# cones (``cone_routes.clear_without_cones``), which runs only where collocation fails: a cone
+# that grazes the path (1e-7 rad clear of it) or many cones near it can make collocation's mesh
+# cut through one at every N until the budget is gone, where the cone-free answer clears them
+# (the session-43 adversarial repros F2 and F2b: status 2 after 20 s before, runs/s44/f2.py)
+CONE_FREE_RESERVE_SHARE = 0.25
+CONE_FREE_RESERVE_MAX = 5.0
+CONE_FREE_RESERVE_FROM = 8.0
+
+
+def cone_free_reserve(budget) -> float:
+    """s of ``budget`` that collocation with cones leaves to the problem without them."""
+    budget = float(budget)
+    return 0.0 if budget < CONE_FREE_RESERVE_FROM else min(CONE_FREE_RESERVE_MAX, CONE_FREE_RESERVE_SHARE * budget)
+
 
 def solve_auto(prob, guess, col_opts, options, **kw) -> SlewSolution:
     """``_solve_auto_route``, and before it, for a p-norm bound with p ≤ 2 and no ``guess``, the
@@ -98,8 +114,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     from .collocation import solve_collocation
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
-    col = solve_collocation(prob, **dict({"time_budget": stage_budget.left(budget, spent()), "defer_tf_tol": not indirect_ok},
-                                         **col_opts))
+    col_budget = stage_budget.left(budget - (0.0 if indirect_ok else cone_free_reserve(budget)), spent())
+    col = solve_collocation(prob, **dict({"time_budget": col_budget, "defer_tf_tol": not indirect_ok}, **col_opts))
     if not indirect_ok:
         ref = cone_routes.refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
         if ref is not None:

@@ -114,9 +114,13 @@ def certified_replay(problem, switch_times, u_first, tf, steps=REPLAY_STEPS):
 
 
 def answer_clearance(problem, sol):
-    """Certified minimum margin over the cones of ``problem`` along the path of ``sol``: for an
-    exact per-axis answer its switch times alone, re-propagated by the environment's RK4
-    (independent of the solver's samples, ``certified_replay``); otherwise its dense samples."""
-    if sol.exact and math.isinf(problem.torque_norm):
+    """Certified minimum margin over the cones of ``problem`` along the path of ``sol``: for a
+    per-axis answer flown by its switch times (an exact extremal, or a bang-bang switch-time
+    answer) those switch times alone, re-propagated by the environment's RK4 (independent of the
+    solver's samples, ``certified_replay``); otherwise its dense samples."""
+    # (a switch-time answer's dense record is coarse, ~100 samples: the certified bound between
+    # them had been 4e-3 rad low on a path that clears a cone by 1e-7, where the replay certifies
+    # it to 5e-7; runs/s44/f2.py, the session-43 adversarial repro F2)
+    if (sol.exact or sol.method == "switch-time") and math.isinf(problem.torque_norm):
         return certified_replay(problem, sol.switch_times, sol.u_first, sol.tf)[2]
     return certified_min_margin(problem, sol.t, sol.q, sol.omega)[1]

@@ -1,0 +1,89 @@
+"""``auto`` with keep-out cones that the cone-free optimum already clears, where collocation with
+the cones fails (its mesh cuts through a cone that grazes the path): the answer of the problem
+without its cones, its clearance certified on an RK4 replay of its switch times
+(``cone_routes.clear_without_cones``, ``clearance.answer_clearance``), in a share of the budget
+that collocation leaves for it (``auto_route.cone_free_reserve``). The session-43 adversarial
+repro F2: a 0.3° cone whose boundary passes 1e-7 rad outside the cone-free path had ended in
+status 2 after 20 s."""
+import math
+
+import numpy as np
+import pytest
+
+import solvers
+from slew_env import SlewProblem
+from solvers import auto_route, clearance, cone_routes
+from solvers.solution import SlewSolution
+
+# the repro (runs/s43/adversarial/repro_F2_tangent_cone_fails.json): its cone-free answer is a
+# bang-bang switch-time slew (a singular arc), tf 1.5628476
+INERTIA = [1.0, 0.7183438267246143, 0.5428235650429168]
+TARGET = [0.16021416297716448, -0.818128926665578, 0.5522648652001644]
+CONE_AXIS = [0.9675520543071086, -0.20579588761689818, 0.14659834530466953]
+HALF_ANGLE = 0.005235887755982971
+
+
+def _problem(half_angle=HALF_ANGLE, axis=CONE_AXIS):
+    return SlewProblem(INERTIA, [1.0, 1.0, 1.0], sensor_target=TARGET, sensor_axis=[1.0, 0.0, 0.0],
+                       cones=[{"axis": axis, "half_angle": half_angle}])
+
+
+@pytest.fixture(scope="module")
+def free_answer():
+    return solvers.solve(_problem().replace(cones=[]))
+
+
+def test_switch_time_answer_clearance_comes_from_its_replay(free_answer):
+    prob = _problem()
+    assert free_answer.success and free_answer.method == "switch-time" and not free_answer.exact
+    assert free_answer.tf == pytest.approx(1.5628476, rel=1e-6)
+    # its ~100 dense samples bound the clearance between them far too low ...
+    dense = clearance.certified_min_margin(prob, free_answer.t, free_answer.q, free_answer.omega)[1]
+    assert dense < -1e-3
+    # ... where the replay of its switch times certifies the path clear within the tolerance
+    replay = clearance.certified_replay(prob, free_answer.switch_times, free_answer.u_first, free_answer.tf)[2]
+    assert clearance.answer_clearance(prob, free_answer) == replay
+    assert clearance.CLEARANCE_TOL <= replay < 1e-6
+
+
+def _failed_collocation(prob):
+    return SlewSolution(False, 2, "stub: collocation's mesh cut through a cone", 10, 20, 0.0,
+                        method="collocation", problem=prob, route="stub collocation")
+
+
+def test_clear_without_cones_answers_with_the_cone_free_slew():
+    prob = _problem()
+    ans = cone_routes.clear_without_cones(prob, _failed_collocation(prob), {}, {}, 5.0)
+    assert ans is not None and ans.success and ans.problem is prob
+    assert ans.tf == pytest.approx(1.5628476, rel=1e-6)
+    check = ans.verification["cone_clearance"]
+    assert check["passed"] and check["value"] >= clearance.CLEARANCE_TOL
+    assert "the problem without cones, whose path clears them" in ans.route
+
+
+def test_clear_without_cones_refuses_a_path_that_enters_a_cone():
+    prob = _problem(half_angle=HALF_ANGLE + 1e-3)     # the same cone 1e-3 rad wider: the path enters it
+    assert cone_routes.clear_without_cones(prob, _failed_collocation(prob), {}, {}, 5.0) is None
+    assert cone_routes.clear_without_cones(_problem(), _failed_collocation(prob), {}, {}, 0.0) is None   # no time
+
+
+def test_cone_free_reserve():
+    assert auto_route.cone_free_reserve(20.0) == pytest.approx(5.0)
+    assert auto_route.cone_free_reserve(10.0) == pytest.approx(2.5)
+    assert auto_route.cone_free_reserve(100.0) == pytest.approx(auto_route.CONE_FREE_RESERVE_MAX)
+    # short budgets keep all of it for collocation
+    assert auto_route.cone_free_reserve(auto_route.CONE_FREE_RESERVE_FROM - 0.1) == 0.0
+    assert auto_route.cone_free_reserve(0.3) == 0.0
+
+
+@pytest.mark.slow
+def test_auto_answers_the_grazing_cone_repro():
+    # collocation fails after ~15 s (its mesh cuts through the cone at every N); 20 s in all
+    prob = _problem()
+    s = solvers.solve(prob)
+    assert s.success and s.status == 0, s.message
+    assert s.tf == pytest.approx(1.5628476, rel=1e-6)
+    assert "the problem without cones, whose path clears them" in s.route
+    assert s.verification["cone_clearance"]["value"] >= clearance.CLEARANCE_TOL
+    assert math.isfinite(s.wall_time)
+    assert np.all(np.isfinite(s.q))
