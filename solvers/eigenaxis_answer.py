@@ -239,6 +239,39 @@ def record_checks(record) -> dict:
     return {"record_replay": record, **({"record_rate_limit": rate} if rate is not None else {})}
 
 
+def legs_checks(target, legs, xf, samples, record, cone_note=None) -> dict:
+    """The verification of a slew flown as eigenaxis ``legs`` one after another (the eigenaxis
+    answer's one leg, or a waypoint slew's), for the problem ``target``: ``xf``, the state their
+    controls reach, replayed from the start, against the target (1e-8; the rate's scale the peak
+    rate, at least 1 / τ); the torque bound at every step's ends; the rate limit; with cones the
+    clearance of the dense ``samples`` ``(t, q, omega, u)``, certified between them (failing with
+    ``cone_note``, if given, as its note); and the record's own checks (``record_checks``)."""
+    qT = xf[0:4] / np.linalg.norm(xf[0:4])
+    att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction))
+           if target.qf is None else float(qerror_angle(qT, target.qf)))
+    rate_err = float(np.linalg.norm(xf[4:7] - target.omegaf))
+    # the rate's scale: the peak rate, at least 1 / τ (τ = sqrt(J_max / u_max)): unit-consistent, as
+    # verify's 1e-8 / τ (a floor of 1 rad per problem time unit had let a slow body's rate miss by
+    # 1 % of its scale at τ = 1e6 s: an outside check of physical units, session 43)
+    w_scale = max(1.0 / target.time_unit, max(leg.peak_rate for leg in legs))
+    bound = max(leg.bound_ratio() for leg in legs)
+    checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
+              "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
+              "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
+    if target.has_rate_limit:
+        rl = max(target.rate_limit_ratio(leg.peak_rate * leg.n) for leg in legs)
+        checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
+    if target.cones:
+        from .clearance import CLEARANCE_TOL, certified_min_margin
+        td, qd, wd = samples[0], samples[1], samples[2]
+        cert = certified_min_margin(target, td, qd, wd)[1]
+        checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
+        if cert < CLEARANCE_TOL and cone_note:
+            checks["cone_clearance"]["note"] = cone_note
+    checks.update(record_checks(record))
+    return checks
+
+
 def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
     """The fastest eigenaxis slew of a rest-to-rest ``problem`` (module docstring);
     ``ValueError`` for a problem not at rest. ``n_grid``: angle steps of the profile (default
@@ -269,30 +302,9 @@ def eigenaxis_answer(problem, n_grid: int = None) -> SlewSolution:
         raise ValueError(f"n_grid: must be an integer ≥ 2, got {n_grid!r}")
     leg = EigenaxisLeg(prob, n_grid)
     (td, qd, wd, ud), record = recorded(target, leg.samples, prob.inertia)
-    # verification: replay, torque at both ends of every step, rate limit
-    xf = leg.replay(np.concatenate([leg.q0, np.zeros(3)]))
-    qT = xf[0:4] / np.linalg.norm(xf[0:4])
-    att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction)) if pointing
-           else float(qerror_angle(qT, prob.qf)))
-    rate_err = float(np.linalg.norm(xf[4:7] - prob.omegaf))
-    # the rate's scale: the peak rate, at least 1 / τ (τ = sqrt(J_max / u_max)): unit-consistent, as
-    # verify's 1e-8 / τ (a floor of 1 rad per problem time unit had let a slow body's rate miss by
-    # 1 % of its scale at τ = 1e6 s: an outside check of physical units, session 43)
-    w_scale = max(1.0 / prob.time_unit, leg.peak_rate)
-    bound = leg.bound_ratio()
-    checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
-              "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
-              "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
-    if prob.has_rate_limit:
-        rl = prob.rate_limit_ratio(leg.peak_rate * leg.n)
-        checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
-    if target.cones:
-        from .clearance import CLEARANCE_TOL, certified_min_margin
-        cert = certified_min_margin(target, td, qd, wd)[1]
-        checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-        if cert < CLEARANCE_TOL:
-            checks["cone_clearance"]["note"] = "the eigenaxis path takes the sensor into a keep-out cone"
-    checks.update(record_checks(record))
+    # verification: replay, torque at both ends of every step, rate limit, cones
+    checks = legs_checks(target, [leg], leg.replay(np.concatenate([leg.q0, np.zeros(3)])), (td, qd, wd, ud), record,
+                         cone_note="the eigenaxis path takes the sensor into a keep-out cone")
     text = failure_text(checks)
     # tf is the duration of this profile exactly; tf_tol: its distance to the continuous
     # eigenaxis optimum, from a grid half as fine

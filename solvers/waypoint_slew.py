@@ -304,7 +304,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     """The waypoint slew of ``plan`` (default: ``plan_waypoints(problem)``) as a verified
     ``SlewSolution`` (module docstring); ``n_grid``: angle steps of each leg's profile (default:
     ``eigenaxis_answer``'s). Where no plan exists, a failed solution (status 5) that says so."""
-    from .eigenaxis_answer import BOUNDARY_TOL, N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg, record_checks, recorded
+    from .eigenaxis_answer import N_GRID, N_GRID_PNORM_GYRO, EigenaxisLeg, legs_checks, recorded
     from .eigenaxis import _phase_plane
     t_start = time.perf_counter()
     target = problem if isinstance(problem, SlewProblem) else SlewProblem.from_dict(problem)
@@ -340,22 +340,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     x = np.concatenate([np.asarray(target.q0, float), np.zeros(3)])
     for leg in legs:
         x = leg.replay(x)
-    qT = x[0:4] / np.linalg.norm(x[0:4])
-    att = (float(angle_between(np.asarray(qrotate(qT, target.sensor_axis)), target.target_direction))
-           if target.qf is None else float(qerror_angle(qT, target.qf)))
-    rate_err = float(np.linalg.norm(x[4:7] - target.omegaf))
-    w_scale = max(1.0 / target.time_unit, max(leg.peak_rate for leg in legs))     # (as eigenaxis_answer)
-    bound = max(leg.bound_ratio() for leg in legs)
-    checks = {"boundary_attitude_error": make_check(att, BOUNDARY_TOL, att <= BOUNDARY_TOL),
-              "boundary_rate_error": make_check(rate_err, BOUNDARY_TOL * w_scale, rate_err <= BOUNDARY_TOL * w_scale),
-              "torque_bound": make_check(bound, 1.0 + 1e-9, bound <= 1.0 + 1e-9)}
-    if target.has_rate_limit:
-        rl = max(target.rate_limit_ratio(leg.peak_rate * leg.n) for leg in legs)
-        checks["rate_limit"] = make_check(rl, 1.0 + 1e-9, rl <= 1.0 + 1e-9)
-    from .clearance import CLEARANCE_TOL, certified_min_margin
-    cert = certified_min_margin(target, td, qd, wd)[1]
-    checks["cone_clearance"] = make_check(cert, CLEARANCE_TOL, cert >= CLEARANCE_TOL)
-    checks.update(record_checks(record))
+    checks = legs_checks(target, legs, x, (td, qd, wd, ud), record)
     text = failure_text(checks)
     tf = float(offsets[-1])
     ends = np.array(offsets)
@@ -379,7 +364,7 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
     if target.qf is None:
         msg += " The last leg is the smallest rotation onto the target (roll not optimised)."
     if not text:
-        msg += f" The path clears every keep-out cone (certified margin {cert:.3g} rad)."
+        msg += f" The path clears every keep-out cone (certified margin {checks['cone_clearance']['value']:.3g} rad)."
     else:
         msg = f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}. {msg}"
     first = ud[0]
