@@ -36,6 +36,13 @@ CONE_FREE_RESERVE_MAX = 5.0
 CONE_FREE_RESERVE_FROM = 8.0
 
 
+# s: at most this for the problem without its cones where collocation's default mesh clips a cone
+# between its points, before it builds finer meshes (``_solve_auto_route``'s ``clipped``): on 80
+# held-out pointing-cones problems no default mesh did (runs/s44/mesh_refine_freq.py), and on the
+# grazing-cone repros the finer meshes had taken the whole budget
+CONE_FREE_FIRST_BUDGET = 3.0
+
+
 def cone_free_reserve(budget) -> float:
     """s of ``budget`` that collocation with cones leaves to the problem without them."""
     budget = float(budget)
@@ -91,7 +98,10 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     (the extremal without cones) or touched at isolated instants (touch-point junctions);
     otherwise (a path riding a cone boundary, or a singular arc) the answer is a bang-bang slew
     with collocation's sequence and optimised switch times, the cones imposed
-    (``switch_time_cones``), or, where none is verified, the collocation answer itself.
+    (``switch_time_cones``), or, where none is verified, the collocation answer itself. Where
+    collocation's default mesh enters a cone between its points, or collocation fails, the answer
+    of the problem without its cones is returned if its path clears them (certified;
+    ``CONE_FREE_FIRST_BUDGET``, ``cone_free_reserve``).
     Pointing-only targets without cones are refined like full-attitude ones (with the roll
     transversality), and get the same switch-time answer where no extremal is certified.
     """
@@ -115,7 +125,27 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
     col_budget = stage_budget.left(budget - (0.0 if indirect_ok else cone_free_reserve(budget)), spent())
-    col = solve_collocation(prob, **dict({"time_budget": col_budget, "defer_tf_tol": not indirect_ok}, **col_opts))
+    free_first = []
+
+    def clipped(first):
+        # the default mesh's answer enters a cone between its points: a cone that grazes the
+        # cone-free path (or many near it) can defeat every finer mesh, where the path of the
+        # problem without its cones may clear them all; tried before the finer meshes
+        if first.verification.get("cone_clearance", {}).get("passed", True):
+            return None
+        free = cone_routes.clear_without_cones(
+            prob, first, options, col_opts, min(CONE_FREE_FIRST_BUDGET, budget - spent()),
+            why=(f"collocation's default mesh enters a cone between its points "
+                 f"(cone_clearance {first.verification['cone_clearance']['value']:.3g} rad), "
+                 "tried before finer meshes"))
+        free_first.extend([free] if free is not None else [])
+        return free
+
+    col = solve_collocation(prob, **dict({"time_budget": col_budget, "defer_tf_tol": not indirect_ok}, **col_opts),
+                            _before_refinement=None if indirect_ok else clipped)
+    if free_first and col is free_first[0]:
+        col.wall_time = spent()
+        return col
     if not indirect_ok:
         ref = cone_routes.refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
         if ref is not None:

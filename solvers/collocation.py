@@ -657,7 +657,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
                       guess=None, tol: float = 1e-8, max_iter: int = 3000, time_budget: float = 60.0,
                       verbose: bool = False, n_starts: Optional[int] = None, seed: int = 0,
                       coarse: bool = True, mesh=None, tols: Optional[dict] = None,
-                      extra_starts=(), defer_tf_tol: bool = False) -> SlewSolution:
+                      extra_starts=(), defer_tf_tol: bool = False, _before_refinement=None) -> SlewSolution:
     """Time-optimal slew of ``problem`` by Hermite–Simpson direct collocation and IPOPT.
 
     Parameters
@@ -717,6 +717,11 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         solve. For a caller that usually replaces the answer by an exact extremal (``auto``'s
         refinements, whose tolerance on ``tf_tol`` has a floor of 1e-3 relative) and settles it
         only when it needs the value or returns the answer.
+    _before_refinement : callable, optional
+        For ``auto`` (not a ``solve`` option): called with the default mesh's answer where its
+        replay fails only on what a finer mesh repairs, before any finer mesh is built; an
+        answer it returns is returned as it is, and the finer meshes are not solved (``None``:
+        they are; the time it took comes out of ``time_budget``).
 
     Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
     the fields, the checks and the statuses.
@@ -735,6 +740,10 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
                                   defer_tf_tol=defer_tf_tol, **kw)
     if n_intervals is not None or mesh is not None or not _mesh_limited(sol):
         return sol
+    if _before_refinement is not None:
+        other = _before_refinement(sol)
+        if other is not None:
+            return other
     # the default mesh is too coarse for this problem (fast axes of a very unequal inertia,
     # say): the replay of its control misses. Solve again on a finer mesh from this answer:
     # uniform (N → 2N → 4N), then refined only where the control or the rates change fast; with a
@@ -868,7 +877,7 @@ def _local_edges(sol, edges):
 
 
 # solve_collocation's keyword options (``solve``'s ``collocation`` dict is checked against them)
-SOLVE_OPTIONS = tuple(inspect.signature(solve_collocation).parameters)[1:]
+SOLVE_OPTIONS = tuple(k for k in inspect.signature(solve_collocation).parameters if not k.startswith("_"))[1:]
 
 
 def _grids(N, cones, coarse):

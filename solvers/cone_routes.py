@@ -385,12 +385,12 @@ def certify_clear(prob, sol):
     return certified >= CLEARANCE_TOL
 
 
-def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto"):
+def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto", why=None):
     """When collocation fails on a cone problem: the answer of the problem without its cones,
     if its path clears every cone at every instant (certified), else ``None`` (also with no time
     left, ``budget_left ≤ 0``). A cone far from
     the path can still upset the NLP; the unconstrained optimum that is feasible is the
-    constrained optimum."""
+    constrained optimum. ``why``: the route's account of the collocation that failed."""
     if budget_left <= 0.0:      # no time left: the route it would take starts with an NLP build
         return None
     free_prob = prob.replace(cones=[])
@@ -399,7 +399,8 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
             else auto_route.solve_auto(free_prob, None, col_opts, opts))
     if not free.success or (exact_only and not free.exact) or not certify_clear(prob, free):
         return None
-    free.route = (f"{label}: collocation with the cones failed ({col.message[:120]}) → the problem without cones, "
+    why = why or f"collocation with the cones failed ({col.message[:120]})"
+    free.route = (f"{label}: {why} → the problem without cones, "
                   f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
                   f"{free.route}")
     return free
