@@ -125,7 +125,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
     col_budget = stage_budget.left(budget - (0.0 if indirect_ok else cone_free_reserve(budget)), spent())
-    free_first = []
+    free_first = []         # the answer the cone-free attempt gave before finer meshes (None: none)
 
     def clipped(first):
         # the default mesh's answer enters a cone between its points: a cone that grazes the
@@ -138,12 +138,12 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             why=(f"collocation's default mesh enters a cone between its points "
                  f"(cone_clearance {first.verification['cone_clearance']['value']:.3g} rad), "
                  "tried before finer meshes"))
-        free_first.extend([free] if free is not None else [])
+        free_first.append(free)
         return free
 
     col = solve_collocation(prob, **dict({"time_budget": col_budget, "defer_tf_tol": not indirect_ok}, **col_opts),
                             _before_refinement=None if indirect_ok else clipped)
-    if free_first and col is free_first[0]:
+    if free_first and free_first[0] is not None and col is free_first[0]:
         col.wall_time = spent()
         return col
     if not indirect_ok:
@@ -156,7 +156,7 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             touch.route = f"auto: collocation ({col.wall_time:.3g} s) → {touch.route}"
             touch.wall_time = spent()
             return touch
-        if not col.success:
+        if not col.success and not free_first:      # (not again where it ran before the finer meshes)
             free = cone_routes.clear_without_cones(prob, col, options, col_opts, budget - spent())
             if free is not None:
                 free.wall_time = spent()

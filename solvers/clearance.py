@@ -94,16 +94,21 @@ def cone_clearances(problem, t, q, omega):
     return [tuple(float(v) for v in row) for row in b]
 
 
-REPLAY_STEPS = (8000, 32000)   # RK4 steps over tf of the certified replay: first try, then finer
+# RK4 steps over tf of the certified replay: first try, then finer while the bound misses the
+# tolerance and the samples clear it. The third level: small cones (0.17-0.6 deg) 1e-8 to 1e-7 rad
+# outside a path were bounded at -1.3e-6 to -2.1e-6 with 32,000 steps, refused, and the solve
+# ended in status 2; 128,000 steps certify them (-7.7e-8 to +5.3e-9 rad), in 20-60 ms, paid only
+# on such paths (an adversarial check, runs/s44/adv/REPORT.md finding 1; runs/s44/replay_levels.py)
+REPLAY_STEPS = (8000, 32000, 128000)
 
 
 def certified_replay(problem, switch_times, u_first, tf, steps=REPLAY_STEPS):
     """``(t, x, certified minimum margin)`` of the path flown from switch times and first-arc
     signs alone (the environment's RK4, ``solvers.verify.replay_path``).
 
-    The certified bound loses ``~ |θ̈| Δt² / 8`` where the path touches a cone; when the
-    first replay's bound misses ``CLEARANCE_TOL`` while its samples clear it, the replay is
-    repeated with the finer step count (the bound tightens 16x)."""
+    The certified bound loses ``~ |θ̈| Δt² / 8`` where the path touches a cone; when a
+    replay's bound misses ``CLEARANCE_TOL`` while its samples clear it, the replay is repeated
+    with the next, finer step count (each tightens the bound 16x)."""
     from .verify import replay_path
     for k, n in enumerate(steps):
         t, x = replay_path(problem.inertia, problem.torque_max, problem.q0, problem.omega0, switch_times, u_first,

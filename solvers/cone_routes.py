@@ -385,25 +385,62 @@ def certify_clear(prob, sol):
     return certified >= CLEARANCE_TOL
 
 
+# s: where the answer without cones enters a cone, its switching sequence optimised with the cones
+# imposed (``switch_time_opt.bang_bang_from_sequences``) gets at most this (``clear_without_cones``):
+# a cone 1.1e-6 to 1e-5 rad inside the cone-free path had ended in status 2 after 15-20 s, though a
+# slew 3.4e-7 slower clears it (runs/s44/adv/REPORT.md finding 2)
+CONE_FREE_REPAIR_BUDGET = 1.0
+
+
 def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=False, label="auto", why=None):
     """When collocation fails on a cone problem: the answer of the problem without its cones,
     if its path clears every cone at every instant (certified), else ``None`` (also with no time
     left, ``budget_left ≤ 0``). A cone far from
     the path can still upset the NLP; the unconstrained optimum that is feasible is the
-    constrained optimum. ``why``: the route's account of the collocation that failed."""
+    constrained optimum. Unless ``exact_only``, where that path enters a cone, its switching
+    sequence is optimised with the cones imposed (``CONE_FREE_REPAIR_BUDGET``; a cone that only
+    clips it needs a small detour, which collocation's mesh can miss): that verified bang-bang
+    slew, or the touch-point extremal at it (``exact_from_own_costates``), is returned instead.
+    ``why``: the route's account of the collocation that failed."""
     if budget_left <= 0.0:      # no time left: the route it would take starts with an NLP build
         return None
+    t0 = time.perf_counter()
     free_prob = prob.replace(cones=[])
     opts = dict(options, time_budget=stage_budget.left(budget_left, 0.0))
     free = (multistart.solve_indirect(free_prob, "indirect", None, **opts) if exact_only
             else auto_route.solve_auto(free_prob, None, col_opts, opts))
-    if not free.success or (exact_only and not free.exact) or not certify_clear(prob, free):
+    if not free.success or (exact_only and not free.exact):
         return None
     why = why or f"collocation with the cones failed ({col.message[:120]})"
+    if not certify_clear(prob, free):
+        left = min(CONE_FREE_REPAIR_BUDGET, budget_left - (time.perf_counter() - t0))
+        return None if exact_only else _repaired_free_answer(prob, free, options, left, f"{label}: {why}")
     free.route = (f"{label}: {why} → the problem without cones, "
                   f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
                   f"{free.route}")
     return free
+
+
+def _repaired_free_answer(prob, free, options, left, prefix) -> Optional[SlewSolution]:
+    """The switching sequence of ``free`` (an answer of ``prob`` without its cones, whose path
+    enters one) optimised with the cones imposed within ``left`` s, and the touch-point extremal at
+    it where one is certified; ``None`` if nothing is verified (or ``free`` has no switch list)."""
+    from .switch_time_cones import switch_time_cones_applies
+    from .switch_time_opt import bang_bang_from_sequences
+    if left <= 0.05 or not (free.exact or free.method == "switch-time") or not switch_time_cones_applies(prob):
+        return None
+    entered = free.verification["cone_clearance"]["value"]
+    seq = (np.asarray(free.u_first, float), [np.asarray(s, float) for s in free.switch_times], float(free.tf))
+    bang, _, _ = bang_bang_from_sequences(prob, [seq], time_budget=left, tols=options.get("tols"),
+                                          source="the answer without cones", numbered=False)
+    if bang is None:
+        return None
+    bang.nit += free.nit        # (its own work is counted in it already)
+    bang.nfev += free.nfev
+    bang.route = (f"{prefix} → the problem without cones, whose path enters a cone (certified {entered:.3g} rad) "
+                  f"→ its switching sequence with the cones imposed: {bang.route}")
+    ex, _ = exact_from_own_costates(prob, bang, options)
+    return ex if ex is not None else bang
 
 
 # the pointing-cones table's sequences route (``cone_sequences_route``): the switching sequences

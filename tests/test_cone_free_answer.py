@@ -59,10 +59,18 @@ def test_clear_without_cones_answers_with_the_cone_free_slew():
     assert "the problem without cones, whose path clears them" in ans.route
 
 
-def test_clear_without_cones_refuses_a_path_that_enters_a_cone():
+def test_clear_without_cones_repairs_a_path_that_enters_a_cone():
     prob = _problem(half_angle=HALF_ANGLE + 1e-3)     # the same cone 1e-3 rad wider: the path enters it
-    assert cone_routes.clear_without_cones(prob, _failed_collocation(prob), {}, {}, 5.0) is None
-    assert cone_routes.clear_without_cones(_problem(), _failed_collocation(prob), {}, {}, 0.0) is None   # no time
+    col = _failed_collocation(prob)
+    # not returned as it is: its switching sequence is optimised with the cone imposed
+    ans = cone_routes.clear_without_cones(prob, col, {}, {}, 5.0)
+    assert ans is not None and ans.success and ans.method == "switch-time"
+    assert "whose path enters a cone" in ans.route
+    assert clearance.certified_replay(prob, ans.switch_times, ans.u_first, ans.tf)[2] >= clearance.CLEARANCE_TOL
+    assert ans.tf > 1.5628476      # a detour round the wider cone costs time
+    # the indirect route's call (exact answers only) gets nothing, and no time gives nothing
+    assert cone_routes.clear_without_cones(prob, col, {}, {}, 5.0, exact_only=True) is None
+    assert cone_routes.clear_without_cones(_problem(), col, {}, {}, 0.0) is None
 
 
 def test_cone_free_reserve():
@@ -113,3 +121,43 @@ def test_the_hook_is_not_a_solve_option():
     assert "_before_refinement" not in collocation.SOLVE_OPTIONS
     with pytest.raises(ValueError, match="_before_refinement"):
         solvers.solve(_problem(), method="collocation", collocation={"_before_refinement": print})
+
+
+# a session-44 adversarial repro: a 0.26 deg cone 1e-7 rad outside the path of this switch-time slew
+# (singular, 23 switches), which the replay bounded at -1.3e-6 with 32,000 steps and refused
+G8_PROBLEM = dict(inertia=[1.0, 1.0, 1.0], torque_max=[0.874, 0.656, 0.725],
+                  qf=[-0.5630759640061589, 0.035698626545042446, -0.571355333850986, -0.5960068366230044],
+                  sensor_axis=[1.0, 0.0, 0.0],
+                  cones=[{"axis": [0.556913549262932, 0.562070041118623, -0.6114937183032002],
+                          "half_angle": 0.004615850014835142}])
+G8_ANSWER = dict(tf=2.8192550800529874, u_first=[-1.0, 1.0, 1.0], switch_times=[
+    [0.32749941175710495, 0.7140534271035787, 0.7245140959284571, 0.7425325324031996, 0.8709457506776581,
+     1.007242128671905, 1.1580772091275182, 1.312380219174751, 1.4699186751176798, 1.6258929620924838,
+     1.765200508575437, 1.8621999533086457, 1.9179102221239934, 1.9869675917865797, 2.0921337668798206,
+     2.196640067910889, 2.258526357126936, 2.2982897136160396, 2.3499190782341213, 2.411558205645642,
+     2.6327392661914826], [1.4096275400264944], [1.4096275400264926]])
+
+
+def test_certified_replay_refines_to_a_third_level_on_a_grazing_path():
+    prob = SlewProblem(**G8_PROBLEM)
+    a = G8_ANSWER
+    coarse = [clearance.certified_replay(prob, a["switch_times"], a["u_first"], a["tf"], steps=(n,))[2]
+              for n in (8000, 32000)]
+    assert all(c < clearance.CLEARANCE_TOL for c in coarse)       # both refuse it ...
+    assert len(clearance.REPLAY_STEPS) == 3
+    t, x, cert = clearance.certified_replay(prob, a["switch_times"], a["u_first"], a["tf"])
+    assert cert >= clearance.CLEARANCE_TOL and cert < 1e-7        # ... the third level certifies it
+    assert t.size == clearance.REPLAY_STEPS[-1] + 1 or t.size > clearance.REPLAY_STEPS[1] + 1
+
+
+def test_auto_repairs_a_cone_free_path_that_clips_the_cone():
+    # the F2 cone 1.5e-6 rad wider: the cone-free path enters it by about 1.4e-6 (beyond the
+    # tolerance); its switching sequence with the cone imposed clears it, as fast to 1e-7
+    prob = _problem(half_angle=HALF_ANGLE + 1.6e-6)
+    s = solvers.solve(prob)
+    assert s.success and s.status == 0, s.message
+    assert "whose path enters a cone" in s.route and "its switching sequence with the cones imposed" in s.route
+    assert s.tf == pytest.approx(1.5628476, rel=1e-6)
+    cert = clearance.certified_replay(prob, s.switch_times, s.u_first, s.tf)[2]
+    assert cert >= clearance.CLEARANCE_TOL
+    assert s.verification["cone_clearance"]["passed"]
