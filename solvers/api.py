@@ -545,6 +545,8 @@ def _dispatch(prob, method, guess, warm_start, options, col_opts, fallback, rese
             sol.route = f"multiple-shooting asked; with cones the route shoots singly → {sol.route}"
     else:
         sol = multistart.solve_indirect(prob, method, guess, **rest)
+    if method == "auto" and prob.cones and guess is None:
+        sol = cone_routes.cone_free_challenger(prob, sol, options, col_opts, t0)
     if challenge and cone_challenge != "never":
         sol = cone_routes.cone_challenger(prob, sol, options, t0, gated=cone_challenge == "gated")
     if method == "auto":

@@ -443,6 +443,64 @@ def _repaired_free_answer(prob, free, options, left, prefix) -> Optional[SlewSol
     return ex if ex is not None else bang
 
 
+# auto with cones: the problem without its cones challenges the answer (``cone_free_challenger``)
+# where the eigenaxis slew's sensor path clears every cone, within this budget (s) and only with at
+# least ``CONE_FREE_CHALLENGE_MIN_LEFT`` s of the solve's left. Collocation can settle on a local
+# extremal that touches a cone the cone-free optimum clears: of an adversarial check's 95 answers
+# with a valid cone-free optimum, 30 were over 1e-4 slower (up to 16 %), 19 of them where the
+# eigenaxis path clears the cones (runs/s44/eig_gate_adv.py). On 300 held-out pointing-cones problems, whose cones lie
+# across the path, that path clears them on none (runs/s44/eig_gate.py): they pay nothing
+CONE_FREE_CHALLENGE_BUDGET = 2.0
+CONE_FREE_CHALLENGE_MIN_LEFT = 0.3
+
+
+def eigenaxis_path_clear(prob) -> bool:
+    """Whether the sensor of the rest-to-rest ``prob``'s eigenaxis slew (to its reference
+    attitude) stays out of every cone, checked at 721 angles (a gate, not a certificate)."""
+    from .clearance import margins
+    from .eigenaxis import eigenaxis_path, reference_problem
+    from .guesses import eigenaxis_axis_angle
+    if not prob.cones or not prob.is_rest_to_rest:
+        return False
+    n, th = eigenaxis_axis_angle(reference_problem(prob))
+    q = eigenaxis_path(np.asarray(prob.q0, float), n, np.linspace(0.0, th, 721))
+    return bool(np.min(margins(prob, q)) > 0.0)
+
+
+def cone_free_challenger(prob, sol, options, col_opts, t0) -> SlewSolution:
+    """``auto``'s answer ``sol`` to ``prob`` (with cones), or the answer of the problem without
+    its cones where that is faster and its path clears them (``clear_without_cones``; where it
+    clips a cone, its repaired sequence). Run only where the eigenaxis path clears every cone
+    (``eigenaxis_path_clear``), ``sol`` is neither that problem's answer already (``auto``'s
+    ``clear_without_cones``) nor its extremal refined from a collocation answer clear of the cones
+    (``refine_inactive_cones``), and
+    ``CONE_FREE_CHALLENGE_MIN_LEFT`` of the budget is left; within ``CONE_FREE_CHALLENGE_BUDGET``."""
+    # not where the answer is that problem's answer already, nor where it is an extremal of that
+    # problem, refined from a collocation answer that keeps clear of the cones: on realistic cones
+    # (15-40 deg at random directions) the eigenaxis path cleared them on 23 of 24 slews, nearly all
+    # such answers, and the challenge tripled the median time (0.23 to 0.74 s) without one faster
+    # answer (runs/s44/realistic_cones.txt). (It would have found a faster extremal on 3 of the
+    # adversarial check's 19 slow answers: a tiny cone far from the path can move collocation to
+    # another basin, 1.7 % and 4 % slower there)
+    if sol.success and ("the problem without cones" in sol.route or "cones inactive" in sol.route):
+        return sol
+    left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
+    if left < CONE_FREE_CHALLENGE_MIN_LEFT or not eigenaxis_path_clear(prob):
+        return sol
+    what = f"{sol.method} answer {sol.tf:.9g}" if sol.success else "no verified answer"
+    free = clear_without_cones(prob, sol, options, col_opts, min(CONE_FREE_CHALLENGE_BUDGET, left),
+                               why=f"the eigenaxis path clears the cones, a challenge to the route's {what}")
+    if free is None:
+        sol.route += "; the problem without cones challenged it (the eigenaxis path clears the cones) and lost"
+        return sol
+    out = warm_routes.faster_verified(sol, free)
+    if out is sol:
+        sol.route += (f"; the problem without cones challenged it (the eigenaxis path clears the cones) and lost "
+                      f"({free.tf:.9g})")
+    out.wall_time = time.perf_counter() - t0
+    return out
+
+
 # the pointing-cones table's sequences route (``cone_sequences_route``): the switching sequences
 # of this many nearest tabled solutions, optimised with the cones imposed, the fastest verified
 # kept. On the 133 of held-out problems 0-399 where the session-39 warm start's candidates

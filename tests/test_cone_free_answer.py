@@ -5,6 +5,8 @@ without its cones, its clearance certified on an RK4 replay of its switch times
 that collocation leaves for it (``auto_route.cone_free_reserve``). The session-43 adversarial
 repro F2: a 0.3° cone whose boundary passes 1e-7 rad outside the cone-free path had ended in
 status 2 after 20 s."""
+import time
+
 import numpy as np
 import pytest
 
@@ -161,3 +163,47 @@ def test_auto_repairs_a_cone_free_path_that_clips_the_cone():
     cert = clearance.certified_replay(prob, s.switch_times, s.u_first, s.tf)[2]
     assert cert >= clearance.CLEARANCE_TOL
     assert s.verification["cone_clearance"]["passed"]
+
+
+# a session-44 adversarial problem: a 0.57 deg cone 1e-7 rad outside the cone-free optimum's sensor
+# path (tf 1.8456930), whose eigenaxis path clears it; auto's route reached a touch-point extremal
+# 0.044 % slower (1.8465007)
+G84_PROBLEM = dict(inertia=[1.0, 1.0, 0.55], torque_max=[1.0, 1.0, 1.0],
+                   sensor_target=[-0.18085006889672653, 0.9652232002595519, -0.18877877598066567],
+                   sensor_axis=[1.0, 0.0, 0.0],
+                   cones=[{"axis": [0.13033399247689625, 0.9575726886451863, -0.2570361771538428],
+                           "half_angle": 0.009999899999999977}])
+
+
+def test_the_cone_free_answer_challenges_where_the_eigenaxis_path_clears_the_cones():
+    prob = SlewProblem(**G84_PROBLEM)
+    assert cone_routes.eigenaxis_path_clear(prob)
+    s = solvers.solve(prob)
+    assert s.success and s.status == 0, s.message
+    assert s.tf == pytest.approx(1.8456930, abs=2e-7)
+    assert "the eigenaxis path clears the cones, a challenge to the route's" in s.route
+    assert "faster than the collocation route's" in s.route
+    assert clearance.answer_clearance(prob, s) >= clearance.CLEARANCE_TOL
+
+
+def test_no_challenge_of_an_extremal_refined_clear_of_the_cones():
+    prob = SlewProblem(**G84_PROBLEM)
+    s = SlewSolution(True, 0, "stub", 1, 1, 0.0, method="indirect", problem=prob, tf=9.0,
+                     route="auto: collocation (0.2 s; cones inactive, clearance 0.5 rad) → indirect refinement without cones")
+    assert cone_routes.cone_free_challenger(prob, s, {}, {}, time.perf_counter()) is s
+    assert "challenge" not in s.route
+
+
+def test_no_cone_free_challenge_where_the_eigenaxis_path_crosses_a_cone():
+    from training.generate import GenerationSpec, problem_for
+    # held-out pointing-cones problems lie across their eigenaxis paths: no extra solve for them
+    probs = [problem_for(GenerationSpec("pointing-cones", seed=20261122), i) for i in range(20)]
+    assert not any(cone_routes.eigenaxis_path_clear(p) for p in probs)
+    assert not cone_routes.eigenaxis_path_clear(_problem().replace(cones=[]))     # (no cones: no gate)
+    # a cone on the great circle's midpoint between the sensor's start and target directions
+    mid = np.array([1.0, 0.0, 0.0]) + np.array(TARGET)
+    crossing = _problem(half_angle=0.2, axis=(mid / np.linalg.norm(mid)).tolist())
+    assert not cone_routes.eigenaxis_path_clear(crossing)
+    s = SlewSolution(True, 0, "stub", 1, 1, 0.0, method="indirect", problem=crossing, route="stub route", tf=9.0)
+    assert cone_routes.cone_free_challenger(crossing, s, {}, {}, time.perf_counter()) is s
+    assert s.route == "stub route"
