@@ -124,13 +124,15 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
     from .collocation import solve_collocation
     # with cones, collocation's N / 2 solve for tf_tol waits: the refinements below mostly
     # replace its answer by an exact extremal (their use of tf_tol has a 1e-3 relative floor)
-    col_budget = stage_budget.left(budget - (0.0 if indirect_ok else cone_free_reserve(budget)), spent())
-    free_first = []         # the answer the cone-free attempt gave before finer meshes (None: none)
+    reserve = 0.0 if indirect_ok else cone_free_reserve(budget)
+    col_budget = stage_budget.left(budget - reserve, spent())
+    free_first = []         # the cone-free attempt's answer before the finer meshes (None: none)
 
     def clipped(first):
         # the default mesh's answer enters a cone between its points: a cone that grazes the
         # cone-free path (or many near it) can defeat every finer mesh, where the path of the
-        # problem without its cones may clear them all; tried before the finer meshes
+        # problem without its cones may clear them all; tried before the finer meshes, which
+        # then get the reserve kept for it (``_refinement_extra``)
         if first.verification.get("cone_clearance", {}).get("passed", True):
             return None
         free = cone_routes.clear_without_cones(
@@ -138,14 +140,20 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
             why=(f"collocation's default mesh enters a cone between its points "
                  f"(cone_clearance {first.verification['cone_clearance']['value']:.3g} rad), "
                  "tried before finer meshes"))
+        if free is not None:        # (the default mesh's work is the answer's too)
+            free.nit += first.nit
+            free.nfev += first.nfev
         free_first.append(free)
         return free
 
     col = solve_collocation(prob, **dict({"time_budget": col_budget, "defer_tf_tol": not indirect_ok}, **col_opts),
-                            _before_refinement=None if indirect_ok else clipped)
+                            _before_refinement=None if indirect_ok else clipped, _refinement_extra=reserve)
     if free_first and free_first[0] is not None and col is free_first[0]:
         col.wall_time = spent()
         return col
+    if free_first:
+        col.route += ("; the problem without cones was tried before the finer meshes and gave no answer clear "
+                      "of the cones")
     if not indirect_ok:
         ref = cone_routes.refine_inactive_cones(prob, col, options, budget - spent()) if col.success else None
         if ref is not None:
@@ -159,6 +167,8 @@ def _solve_auto_route(prob, guess, col_opts, options, refine_cap=2.0, later=None
         if not col.success and not free_first:      # (not again where it ran before the finer meshes)
             free = cone_routes.clear_without_cones(prob, col, options, col_opts, budget - spent())
             if free is not None:
+                free.nit += col.nit
+                free.nfev += col.nfev
                 free.wall_time = spent()
                 return free
         cone_routes.settle_tf_tol(col, budget - spent())

@@ -657,7 +657,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
                       guess=None, tol: float = 1e-8, max_iter: int = 3000, time_budget: float = 60.0,
                       verbose: bool = False, n_starts: Optional[int] = None, seed: int = 0,
                       coarse: bool = True, mesh=None, tols: Optional[dict] = None,
-                      extra_starts=(), defer_tf_tol: bool = False, _before_refinement=None) -> SlewSolution:
+                      extra_starts=(), defer_tf_tol: bool = False, _before_refinement=None,
+                      _refinement_extra: float = 0.0) -> SlewSolution:
     """Time-optimal slew of ``problem`` by Hermite–Simpson direct collocation and IPOPT.
 
     Parameters
@@ -721,7 +722,8 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         For ``auto`` (not a ``solve`` option): called with the default mesh's answer where its
         replay fails only on what a finer mesh repairs, before any finer mesh is built; an
         answer it returns is returned as it is, and the finer meshes are not solved (``None``:
-        they are; the time it took comes out of ``time_budget``).
+        they are; the time it took comes out of ``time_budget``, and ``_refinement_extra`` s are
+        added to it: ``auto``'s reserve for the attempt the hook has made).
 
     Returns a ``SlewSolution`` (``method="collocation"``); see the module docstring for
     the fields, the checks and the statuses.
@@ -744,6 +746,7 @@ def solve_collocation(problem, *, n_intervals: Optional[int] = None, transcripti
         other = _before_refinement(sol)
         if other is not None:
             return other
+        time_budget += float(_refinement_extra)
     # the default mesh is too coarse for this problem (fast axes of a very unequal inertia,
     # say): the replay of its control misses. Solve again on a finer mesh from this answer:
     # uniform (N → 2N → 4N), then refined only where the control or the rates change fast; with a

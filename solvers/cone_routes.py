@@ -371,6 +371,7 @@ def refine_inactive_cones(prob, col, options, budget_left, label="auto"):
     ref.route = (f"{label}: collocation ({col.wall_time:.3g} s; cones inactive, clearance {cc['value']:.3g} rad) → "
                  f"indirect refinement without cones: {ref.route}; certified clearance "
                  f"{ref.verification['cone_clearance']['value']:.3g} rad")
+    ref._cone_free = True
     return ref
 
 
@@ -379,9 +380,14 @@ def certify_clear(prob, sol):
     its path from the cones of ``prob`` (``cone_clearance``) and rebind it to ``prob``;
     ``True`` if the path clears every cone at every instant."""
     from .clearance import CLEARANCE_TOL, answer_clearance
+    from .eigenaxis import BASELINE_CLEARANCE, eigenaxis_path_margin
     certified = answer_clearance(prob, sol)
     sol.verification["cone_clearance"] = make_check(certified, CLEARANCE_TOL, certified >= CLEARANCE_TOL)
     sol.problem = prob
+    # the baseline of the problem without cones is prob's only where the eigenaxis path keeps its
+    # distance from them (``eigenaxis.baseline_time``)
+    if eigenaxis_path_margin(prob) < BASELINE_CLEARANCE:
+        sol.baseline_tf = math.nan
     return certified >= CLEARANCE_TOL
 
 
@@ -401,7 +407,9 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
     sequence is optimised with the cones imposed (``CONE_FREE_REPAIR_BUDGET``; a cone that only
     clips it needs a small detour, which collocation's mesh can miss): that verified bang-bang
     slew, or the touch-point extremal at it (``exact_from_own_costates``), is returned instead.
-    ``why``: the route's account of the collocation that failed."""
+    ``why``: the route's account of the collocation that failed. The answer returned counts its
+    own work only (the caller adds ``col``'s); where none is, the attempt's work is added to
+    ``col``."""
     if budget_left <= 0.0:      # no time left: the route it would take starts with an NLP build
         return None
     t0 = time.perf_counter()
@@ -409,16 +417,22 @@ def clear_without_cones(prob, col, options, col_opts, budget_left, exact_only=Fa
     opts = dict(options, time_budget=stage_budget.left(budget_left, 0.0))
     free = (multistart.solve_indirect(free_prob, "indirect", None, **opts) if exact_only
             else auto_route.solve_auto(free_prob, None, col_opts, opts))
-    if not free.success or (exact_only and not free.exact):
-        return None
     why = why or f"collocation with the cones failed ({col.message[:120]})"
-    if not certify_clear(prob, free):
-        left = min(CONE_FREE_REPAIR_BUDGET, budget_left - (time.perf_counter() - t0))
-        return None if exact_only else _repaired_free_answer(prob, free, options, left, f"{label}: {why}")
-    free.route = (f"{label}: {why} → the problem without cones, "
-                  f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
-                  f"{free.route}")
-    return free
+    out = None
+    if free.success and not (exact_only and not free.exact):
+        if certify_clear(prob, free):
+            free.route = (f"{label}: {why} → the problem without cones, "
+                          f"whose path clears them (certified {free.verification['cone_clearance']['value']:.3g} rad): "
+                          f"{free.route}")
+            free._cone_free = True
+            out = free
+        elif not exact_only:
+            left = min(CONE_FREE_REPAIR_BUDGET, budget_left - (time.perf_counter() - t0))
+            out = _repaired_free_answer(prob, free, options, left, f"{label}: {why}")
+    if out is None:         # (the attempt's work is the caller's answer's)
+        col.nit += free.nit
+        col.nfev += free.nfev
+    return out
 
 
 def _repaired_free_answer(prob, free, options, left, prefix) -> Optional[SlewSolution]:
@@ -427,19 +441,24 @@ def _repaired_free_answer(prob, free, options, left, prefix) -> Optional[SlewSol
     it where one is certified; ``None`` if nothing is verified (or ``free`` has no switch list)."""
     from .switch_time_cones import switch_time_cones_applies
     from .switch_time_opt import bang_bang_from_sequences
+    t0 = time.perf_counter()
     if left <= 0.05 or not (free.exact or free.method == "switch-time") or not switch_time_cones_applies(prob):
         return None
     entered = free.verification["cone_clearance"]["value"]
     seq = (np.asarray(free.u_first, float), [np.asarray(s, float) for s in free.switch_times], float(free.tf))
-    bang, _, _ = bang_bang_from_sequences(prob, [seq], time_budget=left, tols=options.get("tols"),
-                                          source="the answer without cones", numbered=False)
+    bang, _, (nit, nfev) = bang_bang_from_sequences(prob, [seq], time_budget=left, tols=options.get("tols"),
+                                                    source="the answer without cones", numbered=False)
     if bang is None:
+        free.nit += nit
+        free.nfev += nfev
         return None
     bang.nit += free.nit        # (its own work is counted in it already)
     bang.nfev += free.nfev
     bang.route = (f"{prefix} → the problem without cones, whose path enters a cone (certified {entered:.3g} rad) "
                   f"→ its switching sequence with the cones imposed: {bang.route}")
-    ex, _ = exact_from_own_costates(prob, bang, options)
+    # (within what is left of ``left``: the touch solve's own minimum keeps it from starting late)
+    ex, _ = exact_from_own_costates(prob, bang, options,
+                                    min(OWN_COSTATES_BUDGET, left - (time.perf_counter() - t0)))
     return ex if ex is not None else bang
 
 
@@ -456,47 +475,42 @@ CONE_FREE_CHALLENGE_MIN_LEFT = 0.3
 
 def eigenaxis_path_clear(prob) -> bool:
     """Whether the sensor of the rest-to-rest ``prob``'s eigenaxis slew (to its reference
-    attitude) stays out of every cone, checked at 721 angles (a gate, not a certificate)."""
-    from .clearance import margins
-    from .eigenaxis import eigenaxis_path, reference_problem
-    from .guesses import eigenaxis_axis_angle
-    if not prob.cones or not prob.is_rest_to_rest:
-        return False
-    n, th = eigenaxis_axis_angle(reference_problem(prob))
-    q = eigenaxis_path(np.asarray(prob.q0, float), n, np.linspace(0.0, th, 721))
-    return bool(np.min(margins(prob, q)) > 0.0)
+    attitude) stays out of every cone (``eigenaxis.eigenaxis_path_margin`` > 0: a gate, not a
+    certificate); ``False`` without cones or not at rest."""
+    from .eigenaxis import eigenaxis_path_margin
+    return bool(prob.cones) and prob.is_rest_to_rest and eigenaxis_path_margin(prob) > 0.0
 
 
 def cone_free_challenger(prob, sol, options, col_opts, t0) -> SlewSolution:
     """``auto``'s answer ``sol`` to ``prob`` (with cones), or the answer of the problem without
-    its cones where that is faster and its path clears them (``clear_without_cones``; where it
-    clips a cone, its repaired sequence). Run only where the eigenaxis path clears every cone
-    (``eigenaxis_path_clear``), ``sol`` is neither that problem's answer already (``auto``'s
-    ``clear_without_cones``) nor its extremal refined from a collocation answer clear of the cones
-    (``refine_inactive_cones``), and
-    ``CONE_FREE_CHALLENGE_MIN_LEFT`` of the budget is left; within ``CONE_FREE_CHALLENGE_BUDGET``."""
-    # not where the answer is that problem's answer already, nor where it is an extremal of that
-    # problem, refined from a collocation answer that keeps clear of the cones: on realistic cones
-    # (15-40 deg at random directions) the eigenaxis path cleared them on 23 of 24 slews, nearly all
-    # such answers, and the challenge tripled the median time (0.23 to 0.74 s) without one faster
-    # answer (runs/s44/realistic_cones.txt). (It would have found a faster extremal on 3 of the
-    # adversarial check's 19 slow answers: a tiny cone far from the path can move collocation to
-    # another basin, 1.7 % and 4 % slower there)
-    if sol.success and ("the problem without cones" in sol.route or "cones inactive" in sol.route):
+    its cones (``clear_without_cones``: where its path clears the cones; where it clips one, its
+    repaired sequence) where that is faster, or exact and as fast within ``sol``'s ``tf_tol``
+    where ``sol`` is approximate (``cone_challenger``'s rule). Run only where the eigenaxis path
+    clears every cone (``eigenaxis_path_clear``), ``sol`` is not already an answer or extremal of
+    the problem without cones (``SlewSolution._cone_free``), and ``CONE_FREE_CHALLENGE_MIN_LEFT``
+    of the budget is left; within ``CONE_FREE_CHALLENGE_BUDGET``. The route records the challenge;
+    the work of both is counted and ``wall_time`` is the whole solve's."""
+    if sol.success and sol._cone_free:
         return sol
     left = float(options.get("time_budget", 20.0)) - (time.perf_counter() - t0)
     if left < CONE_FREE_CHALLENGE_MIN_LEFT or not eigenaxis_path_clear(prob):
         return sol
-    what = f"{sol.method} answer {sol.tf:.9g}" if sol.success else "no verified answer"
+    what = f"{sol.method} answer {sol.tf:.9g}" if sol.success else "failure"
+    challenge = "the problem without cones challenged it (the eigenaxis path clears the cones)"
     free = clear_without_cones(prob, sol, options, col_opts, min(CONE_FREE_CHALLENGE_BUDGET, left),
-                               why=f"the eigenaxis path clears the cones, a challenge to the route's {what}")
-    if free is None:
-        sol.route += "; the problem without cones challenged it (the eigenaxis path clears the cones) and lost"
-        return sol
-    out = warm_routes.faster_verified(sol, free)
-    if out is sol:
-        sol.route += (f"; the problem without cones challenged it (the eigenaxis path clears the cones) and lost "
-                      f"({free.tf:.9g})")
+                               why=f"the eigenaxis path clears the cones: a challenge to the route's {what}")
+    tol = sol.tf_tol if sol.success and math.isfinite(sol.tf_tol) else 0.0
+    wins = free is not None and (not sol.success or free.tf < sol.tf * (1.0 - 1e-9)
+                                 or (free.exact and not sol.exact and free.tf <= sol.tf + tol))
+    if wins:
+        out = warm_routes.replace_answer(free, sol, sol.warm_start)
+        out.route += f"; it replaced the route's {what}"
+    else:
+        out = sol
+        if free is not None:
+            sol.nit += free.nit
+            sol.nfev += free.nfev
+        sol.route += f"; {challenge} and lost" + (f" ({free.tf:.9g})" if free is not None else "")
     out.wall_time = time.perf_counter() - t0
     return out
 

@@ -158,6 +158,23 @@ def reference_problem(problem: SlewProblem) -> SlewProblem:
     return problem.replace(qf=reference_attitude(problem), sensor_target=None, cones=())
 
 
+EIGENAXIS_PATH_SAMPLES = 721
+
+
+def eigenaxis_path_margin(problem: SlewProblem) -> float:
+    """The smallest clearance margin (rad) of the sensor from the keep-out cones along the eigenaxis
+    slew of the rest-to-rest ``problem`` to its reference attitude, sampled at
+    ``EIGENAXIS_PATH_SAMPLES`` angles (``inf`` without cones): not certified between the samples.
+    ``baseline_time``, ``waypoint_slew.direct_path_clear`` and ``cone_routes.eigenaxis_path_clear``
+    compare it with their own thresholds."""
+    if not problem.cones:
+        return math.inf
+    from .clearance import margins
+    n, th = eigenaxis_axis_angle(reference_problem(problem))
+    q = eigenaxis_path(np.asarray(problem.q0, float), n, np.linspace(0.0, th, EIGENAXIS_PATH_SAMPLES))
+    return float(np.min(margins(problem, q)))
+
+
 def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
     """The eigenaxis baseline of a rest-to-rest ``problem`` (``SlewSolution.baseline_tf``): the
     eigenaxis slew's time to its reference attitude; NaN for a problem not at rest, and where the
@@ -165,14 +182,9 @@ def baseline_time(problem: SlewProblem, n_grid=1000) -> float:
     crosses a cone is no baseline to compare an answer with)."""
     if not problem.is_rest_to_rest:
         return math.nan
-    ref = reference_problem(problem)
-    if problem.cones:
-        from .clearance import margins
-        n, th = eigenaxis_axis_angle(ref)
-        q = eigenaxis_path(np.asarray(problem.q0, float), n, np.linspace(0.0, th, 721))
-        if float(np.min(margins(problem, q))) < BASELINE_CLEARANCE:
-            return math.nan
-    return eigenaxis_time(ref, n_grid=n_grid)
+    if eigenaxis_path_margin(problem) < BASELINE_CLEARANCE:
+        return math.nan
+    return eigenaxis_time(reference_problem(problem), n_grid=n_grid)
 
 
 def eigenaxis_path(q0, n, theta) -> np.ndarray:

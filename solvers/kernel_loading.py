@@ -144,7 +144,9 @@ def load_kernels(problems=None, method: str = "auto", warm_start="default") -> f
     ``problems``: a ``SlewProblem`` (or a dict, or a list of them) whose kinds to load, and, where
     ``solve(problem)``'s route begins with collocation (pointing and cone problems, full-attitude
     ones no shipped warm start covers), the collocation NLPs of their default mesh and cone count
-    (``collocation.prebuild_nlps``); ``None`` loads every kind. Returns the seconds spent.
+    (``collocation.prebuild_nlps``), and with ``auto`` and cones those of the problem without its
+    cones too (``solve`` builds only the first before its clock: the cone-free stages are rare);
+    ``None`` loads every kind. Returns the seconds spent.
     ``solve`` does this by itself before its clock starts, so calling it is needed only to take
     that time at start-up rather than in the first solve (0.2–1.8 s a kind once numba's cache
     exists; on a fresh install it compiles, tens of seconds a kind; the module docstring).
@@ -178,6 +180,9 @@ def load_kernels(problems=None, method: str = "auto", warm_start="default") -> f
     if problems is not None:
         from .api import _begins_with_collocation
         from .collocation import prebuild_nlps
-        # the NLPs that solve(p, method=method, warm_start=warm_start) builds before its clock
+        # the NLPs that solve(p, method=method, warm_start=warm_start) builds before its clock, and
+        # for auto with cones those of the problem without them, which its rarer stages solve
+        # (``cone_routes.clear_without_cones``, ``cone_free_challenger``) inside the budget
         total += sum(prebuild_nlps(p) for p in probs if _begins_with_collocation(p, method, None, warm_start))
+        total += sum(prebuild_nlps(p.replace(cones=[])) for p in probs if method == "auto" and p.cones)
     return total

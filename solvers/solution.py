@@ -128,6 +128,10 @@ class SlewSolution:
     _control: Optional[Callable] = None
     # collocation's deferred tf_tol measurement (``collocation.settle_tf_tol``), if any
     _tf_tol_pending: Optional[Callable] = field(default=None, repr=False, compare=False)
+    # an answer of a problem with cones that is the answer (or an extremal) of that problem without
+    # them, certified clear of the cones (``cone_routes``: ``refine_inactive_cones``,
+    # ``clear_without_cones``): ``cone_free_challenger`` leaves it alone
+    _cone_free: bool = field(default=False, repr=False, compare=False)
 
     def control(self, t):
         """Torque at time(s) ``t`` (problem units). Bang-bang: exact from the switch times.

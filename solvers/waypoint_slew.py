@@ -283,7 +283,6 @@ def plan_waypoints(problem) -> Optional[WaypointPlan]:
 
 # the direct eigenaxis path's 721 samples are at most π/720 rad apart: between two samples it sags
 # at most ~(π/720)²/8 ≈ 2.4e-6 rad below them, so a sampled margin above this clears every instant
-DIRECT_SAMPLES = 721
 DIRECT_CLEARANCE = 1e-5
 
 
@@ -291,13 +290,8 @@ def direct_path_clear(problem) -> bool:
     """Whether the direct eigenaxis slew of a rest-to-rest ``problem`` keeps the sensor out of
     every cone (its sampled path by ``DIRECT_CLEARANCE``; its answer then certifies it). A path that
     passes closer than ``eigenaxis.BASELINE_CLEARANCE`` is still flown, but is no baseline."""
-    if not problem.cones:
-        return True
-    from .clearance import margins
-    from .eigenaxis import eigenaxis_axis_angle, reference_problem
-    n, th = eigenaxis_axis_angle(reference_problem(problem))
-    q = eigenaxis_path(np.asarray(problem.q0, float), n, np.linspace(0.0, th, DIRECT_SAMPLES))
-    return float(np.min(margins(problem, q))) >= DIRECT_CLEARANCE
+    from .eigenaxis import eigenaxis_path_margin
+    return eigenaxis_path_margin(problem) >= DIRECT_CLEARANCE
 
 
 def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = None) -> SlewSolution:
@@ -363,9 +357,9 @@ def waypoint_answer(problem, n_grid: int = None, plan: Optional[WaypointPlan] = 
            "time-optimal extremal.")
     if target.qf is None:
         msg += " The last leg is the smallest rotation onto the target (roll not optimised)."
-    if not text:
+    if not text and target.cones:
         msg += f" The path clears every keep-out cone (certified margin {checks['cone_clearance']['value']:.3g} rad)."
-    else:
+    elif text:
         msg = f"{STATUS_MESSAGES[STATUS_VERIFICATION_FAILED]} {text}. {msg}"
     first = ud[0]
     return SlewSolution(not text, STATUS_SUCCESS if not text else STATUS_VERIFICATION_FAILED, msg, 0, 0,

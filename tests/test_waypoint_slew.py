@@ -204,3 +204,15 @@ def test_no_plan_gives_a_failure_that_says_so(monkeypatch):
     monkeypatch.setattr(waypoint_slew, "plan_waypoints", lambda p: None)
     sol = solvers.solve(_blocked_pointing(), method="eigenaxis")
     assert not sol.success and "keep-out cone" in sol.message
+
+
+def test_a_plan_flown_on_the_problem_without_its_cones():
+    # (the waypoint answer's checks run the cone check only where there are cones)
+    p = _blocked_pointing()
+    plan = waypoint_slew.plan_waypoints(p)
+    ans = waypoint_slew.waypoint_answer(p.replace(cones=[]), plan=plan)
+    assert ans.success and "cone_clearance" not in ans.verification
+    assert "keep-out cone (certified" not in ans.message
+    with_cones = waypoint_slew.waypoint_answer(p, plan=plan)
+    assert with_cones.success and with_cones.verification["cone_clearance"]["passed"]
+    assert with_cones.tf == pytest.approx(ans.tf, rel=1e-12)
