@@ -84,6 +84,15 @@ def network_predicted_tf(model, prob) -> Optional[float]:
     return tf if tf is not None and tf > 0.0 and math.isfinite(tf) else None
 
 
+def beats(new, old) -> bool:
+    """Whether a challenger's verified answer ``new`` replaces ``auto``'s answer ``old``: ``old``
+    failed, or ``new`` is faster, or, where ``old`` is approximate, ``new`` is exact and as fast within
+    ``old``'s own accuracy (an approximate answer's tf is only known to its ``tf_tol``)."""
+    tol = old.tf_tol if old.success and math.isfinite(old.tf_tol) else 0.0
+    return (not old.success or new.tf < old.tf * (1.0 - 1e-9)
+            or (new.exact and not old.exact and new.tf <= old.tf + tol))
+
+
 def cone_challenger(prob, sol, options, t0, gated=True) -> SlewSolution:
     """``auto`` on a problem with cones: after the default route (collocation, then the exact
     refinements) has answered, the shipped pointing-cones warm start (``warmstart.cone_ensemble``:
@@ -132,11 +141,7 @@ def cone_challenger(prob, sol, options, t0, gated=True) -> SlewSolution:
         sol.wall_time = time.perf_counter() - t0
         return sol
     info["tf"] = float(ch.tf)
-    tol = sol.tf_tol if sol.success and math.isfinite(sol.tf_tol) else 0.0
-    # faster; or, where the answer is approximate, exact and as fast within the answer's own
-    # accuracy (the approximate answer's tf is only known to tf_tol)
-    faster = ch.exact and (not sol.success or ch.tf < sol.tf * (1.0 - 1e-9)
-                           or (not sol.exact and ch.tf <= sol.tf + tol))
+    faster = ch.exact and beats(ch, sol)
     if not faster:
         sol.warm_start = info
         sol.wall_time = time.perf_counter() - t0
@@ -386,7 +391,8 @@ def certify_clear(prob, sol):
     sol.problem = prob
     # the baseline of the problem without cones is prob's only where the eigenaxis path keeps its
     # distance from them (``eigenaxis.baseline_time``)
-    if eigenaxis_path_margin(prob) < BASELINE_CLEARANCE:
+    # (only where there is a baseline to drop: this runs on every converged learned candidate)
+    if math.isfinite(sol.baseline_tf) and eigenaxis_path_margin(prob) < BASELINE_CLEARANCE:
         sol.baseline_tf = math.nan
     return certified >= CLEARANCE_TOL
 
@@ -484,8 +490,7 @@ def eigenaxis_path_clear(prob) -> bool:
 def cone_free_challenger(prob, sol, options, col_opts, t0) -> SlewSolution:
     """``auto``'s answer ``sol`` to ``prob`` (with cones), or the answer of the problem without
     its cones (``clear_without_cones``: where its path clears the cones; where it clips one, its
-    repaired sequence) where that is faster, or exact and as fast within ``sol``'s ``tf_tol``
-    where ``sol`` is approximate (``cone_challenger``'s rule). Run only where the eigenaxis path
+    repaired sequence) where it ``beats`` ``sol`` (``cone_challenger``'s rule). Run only where the eigenaxis path
     clears every cone (``eigenaxis_path_clear``), ``sol`` is not already an answer or extremal of
     the problem without cones (``SlewSolution._cone_free``), and ``CONE_FREE_CHALLENGE_MIN_LEFT``
     of the budget is left; within ``CONE_FREE_CHALLENGE_BUDGET``. The route records the challenge;
@@ -499,10 +504,7 @@ def cone_free_challenger(prob, sol, options, col_opts, t0) -> SlewSolution:
     challenge = "the problem without cones challenged it (the eigenaxis path clears the cones)"
     free = clear_without_cones(prob, sol, options, col_opts, min(CONE_FREE_CHALLENGE_BUDGET, left),
                                why=f"the eigenaxis path clears the cones: a challenge to the route's {what}")
-    tol = sol.tf_tol if sol.success and math.isfinite(sol.tf_tol) else 0.0
-    wins = free is not None and (not sol.success or free.tf < sol.tf * (1.0 - 1e-9)
-                                 or (free.exact and not sol.exact and free.tf <= sol.tf + tol))
-    if wins:
+    if free is not None and beats(free, sol):
         out = warm_routes.replace_answer(free, sol, sol.warm_start)
         out.route += f"; it replaced the route's {what}"
     else:

@@ -43,12 +43,12 @@ import numpy as np
 
 from slew_env import SlewProblem
 from slew_env.core.cones import angle_between, perpendicular_basis
-from slew_env.core.quaternion import qaxis_angle, qerror_angle, qfrom_two_vectors, qmul, qrotate, qrotate_inv
+from slew_env.core.quaternion import qaxis_angle, qfrom_two_vectors, qmul, qrotate, qrotate_inv
 from .clearance import sensor_directions
 from .eigenaxis import axis_time, eigenaxis_path
 from .guesses import eigenaxis_acceleration
 from .solution import STATUS_SUCCESS, STATUS_VERIFICATION_FAILED, STATUS_MESSAGES, SlewSolution
-from .verify import failure_text, make_check
+from .verify import failure_text
 
 # rad beyond each cone's half-angle: the rings the candidate waypoint directions lie on
 RING_OFFSETS = (0.03, 0.12)
@@ -281,7 +281,7 @@ def plan_waypoints(problem) -> Optional[WaypointPlan]:
     return WaypointPlan(best[1], best[2], float(best[0]), n_tried, list(best[3]))
 
 
-# the direct eigenaxis path's 721 samples are at most π/720 rad apart: between two samples it sags
+# the direct eigenaxis path's 721 samples (``eigenaxis.EIGENAXIS_PATH_SAMPLES``) are at most π/720 rad apart: between two samples it sags
 # at most ~(π/720)²/8 ≈ 2.4e-6 rad below them, so a sampled margin above this clears every instant
 DIRECT_CLEARANCE = 1e-5
 
